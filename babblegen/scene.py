@@ -1,0 +1,99 @@
+"""Declarative description of a babbling scene: table, objects, workspace box, head camera, home pose.
+
+A task module in tasks/ fills in a `TaskSpec`; the ManiSkill env, the planner's obstacles and the
+genome-to-world mapping all read from it, so a new scene is one module and a registration.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from babblegen.world.collision import Box
+
+
+@dataclass(frozen=True)
+class ObjectSpec:
+    """A free object resting on the table. Sizes: box = half extents, cylinder = (radius, half height),
+    sphere = (radius,). `xy` is where it rests; it is placed on the table top."""
+
+    name: str
+    shape: str
+    size: tuple[float, ...]
+    color: tuple[float, float, float, float]
+    mass: float
+    xy: tuple[float, float]
+
+    @property
+    def half_height(self) -> float:
+        return {"box": lambda s: s[2], "cylinder": lambda s: s[1], "sphere": lambda s: s[0]}[self.shape](
+            self.size
+        )
+
+    @property
+    def volume(self) -> float:
+        s = self.size
+        return {
+            "box": lambda: 8 * s[0] * s[1] * s[2],
+            "cylinder": lambda: np.pi * s[0] ** 2 * 2 * s[1],
+            "sphere": lambda: 4 / 3 * np.pi * s[0] ** 3,
+        }[self.shape]()
+
+
+@dataclass(frozen=True)
+class WorkspaceBox:
+    """Maps normalised genome coordinates ([0,1]^3 is the box; values may leave it) to world metres."""
+
+    low: tuple[float, float, float]
+    high: tuple[float, float, float]
+
+    def to_world(self, norm: np.ndarray) -> np.ndarray:
+        low, high = np.asarray(self.low), np.asarray(self.high)
+        return low + np.asarray(norm) * (high - low)
+
+    def to_norm(self, world: np.ndarray) -> np.ndarray:
+        low, high = np.asarray(self.low), np.asarray(self.high)
+        return (np.asarray(world) - low) / (high - low)
+
+
+@dataclass(frozen=True)
+class CameraSpec:
+    eye: tuple[float, float, float]
+    target: tuple[float, float, float]
+    fov: float  # vertical field of view, radians
+
+
+@dataclass(frozen=True)
+class TaskSpec:
+    """Everything babblegen needs to know about a scene."""
+
+    name: str
+    env_id: str
+    description: str
+    table: Box  # the table as one solid box (top surface = center z + half height)
+    objects: tuple[ObjectSpec, ...]
+    workspace: WorkspaceBox
+    camera: CameraSpec
+    robot_uid: str = "pr2_like_arm"
+    extra_obstacles: tuple[Box, ...] = field(default_factory=tuple)
+
+    @property
+    def table_top(self) -> float:
+        return self.table.center[2] + self.table.half_extents[2]
+
+    @property
+    def object_names(self) -> list[str]:
+        return [o.name for o in self.objects]
+
+    def rest_pose(self, obj: ObjectSpec) -> tuple[float, ...]:
+        """Nominal resting pose (x, y, z, qw, qx, qy, qz) of an object on the table."""
+        return (obj.xy[0], obj.xy[1], self.table_top + obj.half_height, 1.0, 0.0, 0.0, 0.0)
+
+    def planning_obstacles(self) -> list[Box]:
+        """The table, the floor and any extra static boxes (the robot's own body comes from its URDF)."""
+        floor = Box("floor", (0.0, 0.0, -0.5), (5.0, 5.0, 0.5))
+        return [self.table, floor, *self.extra_obstacles]
+
+    def to_dict(self) -> dict:
+        return asdict(self)

@@ -1,0 +1,62 @@
+"""What one attempted movement produced: the command, whether it was feasible, and what was recorded."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+# Why an attempt was not executed.
+REASONS = {
+    "out_of_reach": "a target is farther from the shoulder than the arm can reach",
+    "no_ik": "inverse kinematics found no joint configuration for a target",
+    "target_in_collision": "every configuration reaching a target collides with the table, floor or robot",
+    "no_plan": "the planner found no collision-free path in its time limit",
+}
+
+
+@dataclass
+class Command:
+    """What the arm is asked to do: end-effector waypoints (normalised workspace coordinates) or one
+    joint-space target (radians)."""
+
+    kind: str  # "ee_waypoints" or "joint_target"
+    values: np.ndarray  # (n, 3) or (dof,)
+
+
+@dataclass
+class Frames:
+    """Per-frame recordings, frame 0 is the scene before the movement and the last frame after it."""
+
+    state: np.ndarray  # (T, dof) joint positions
+    action: np.ndarray  # (T, dof) commanded joint positions
+    ee_pos: np.ndarray  # (T, 3) tool point, world frame
+    object_poses: np.ndarray  # (T, n_objects, 7) x, y, z, qw, qx, qy, qz
+    contacts: np.ndarray  # (T, n_objects) 1 where the arm touched that object since the previous frame
+    images: np.ndarray  # (T, H, W, 3) uint8 head camera
+
+    def __len__(self) -> int:
+        return len(self.state)
+
+
+@dataclass
+class Rollout:
+    command: Command
+    feasible: bool
+    reason: str = ""  # a key of REASONS when infeasible
+    ee_targets: np.ndarray | None = None  # (n, 3) world targets, for waypoint commands
+    joint_path: np.ndarray | None = None  # (m, dof) planned joint waypoints, out and back
+    planner: str = ""  # how the path was found: "direct", "rrtconnect" (for any segment)
+    frames: Frames | None = None
+    touched: np.ndarray | None = None  # (n_objects,) bool: the arm touched the object at some point
+    displacement: np.ndarray | None = None  # (n_objects,) metres between start and final position
+    final_poses: np.ndarray | None = None  # (n_objects, 7)
+    timings: dict[str, float] = field(default_factory=dict)  # seconds: ik, plan, sim, render, total
+
+    @property
+    def before_image(self) -> np.ndarray | None:
+        return None if self.frames is None else self.frames.images[0]
+
+    @property
+    def after_image(self) -> np.ndarray | None:
+        return None if self.frames is None else self.frames.images[-1]

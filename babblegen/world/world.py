@@ -1,0 +1,300 @@
+"""The simulated world: turns a command into an executed, recorded trajectory (or a reason it was not).
+
+One `World` owns a ManiSkill env (SAPIEN physics + CPU rendering), the arm's kinematic model, a collision
+model of the static scene, and an OMPL planner. A rollout: reset the scene, plan (IK per waypoint, then a
+collision-free joint path per segment), execute the path out and back under the joint position
+controller, let the scene settle, and record frames at a fixed rate.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import asdict, dataclass
+
+import gymnasium as gym
+import numpy as np
+import torch
+
+from babblegen.scene import TaskSpec
+from babblegen.world.collision import Box, SphereCollisionModel
+from babblegen.world.kinematics import ArmKinematics, UrdfModel
+from babblegen.world.planner import JointPlanner
+from babblegen.world.rollout import Command, Frames, Rollout
+
+
+@dataclass(frozen=True)
+class WorldSettings:
+    """Simulation, rendering and planning choices (all recorded with every dataset)."""
+
+    camera_width: int = 128
+    camera_height: int = 128
+    fps: int = 10  # recorded frames per second of simulated time
+    control_freq: int = 20  # joint targets per second
+    sim_freq: int = 100  # physics steps per second
+    max_joint_speed: float = 1.5  # rad/s on the fastest joint along the path
+    dwell_seconds: float = 0.2  # pause at the final waypoint before returning
+    settle_seconds: float = 0.5  # after the return, before the after image
+    plan_time_limit: float = 1.0  # seconds of RRTConnect per segment
+    ik_tolerance: float = 0.005  # metres
+    ik_seeds: int = 8
+    collision_margin: float = 0.01  # metres kept from table, floor and robot body
+
+    def __post_init__(self):
+        if self.control_freq % self.fps or self.sim_freq % self.control_freq:
+            raise ValueError("need fps | control_freq | sim_freq (e.g. 10, 20, 100)")
+        if min(self.camera_width, self.camera_height) < 16:
+            raise ValueError("camera resolution must be at least 16x16")
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+class World:
+    """Executes commands in a task's scene. Not thread-safe: one World per process."""
+
+    def __init__(self, task: TaskSpec, settings: WorldSettings | None = None, seed: int = 0):
+        from babblegen.tasks import pr2_arm  # noqa: F401  (registers the env's agent and scenes)
+
+        self.task = task
+        self.settings = s = settings or WorldSettings()
+        self.rng = np.random.default_rng(seed)
+        self.env = gym.make(
+            task.env_id,
+            obs_mode="none",
+            sim_backend="physx_cpu",
+            render_backend="cpu",
+            control_mode="pd_joint_pos",
+            camera_width=s.camera_width,
+            camera_height=s.camera_height,
+            sim_freq=s.sim_freq,
+            control_freq=s.control_freq,
+        )
+        self.env.reset(seed=seed)
+        self.sim = self.env.unwrapped
+        self.agent = self.sim.agent
+        self.home = np.asarray(self.agent.keyframes["home"].qpos, dtype=np.float64)
+
+        urdf = UrdfModel.load(pr2_arm.URDF_PATH)
+        self.kin = ArmKinematics(urdf, pr2_arm.BASE_LINK, pr2_arm.TOOL_LINK)
+        body = [
+            Box(
+                f"robot_body_{i}",
+                tuple(sh.origin[:3, 3]),
+                tuple(sh.size / 2),
+                tuple(map(tuple, sh.origin[:3, :3])),
+            )
+            for i, sh in enumerate(urdf.links[pr2_arm.BASE_LINK])
+        ]
+        self.collision = SphereCollisionModel(
+            self.kin,
+            task.planning_obstacles() + body,
+            margin=s.collision_margin,
+            body_exempt_links=("r_shoulder_pan_link", "r_shoulder_lift_link"),
+            self_exempt_pairs=(("r_shoulder_pan_link", "r_upper_arm_roll_link"),),
+        )
+        self.planner = JointPlanner(self.collision, time_limit=s.plan_time_limit)
+        self.reach = self._max_reach()
+        self.shoulder = self.kin.link_frames(self.home)[1][0, 2]
+
+        self.object_names = task.object_names
+        self._object_entities = [self.sim.objects[n]._objs[0] for n in self.object_names]
+        self._arm = self.agent.robot._objs[0]
+        self._tool = next(link for link in self._arm.links if link.entity.name == pr2_arm.TOOL_LINK)
+        self._arm_entity_names = {link.entity.name for link in self._arm.links} - {pr2_arm.BASE_LINK}
+        self._object_index = {e.name: i for i, e in enumerate(self._object_entities)}
+        self._camera = self.sim.scene.sensors["head"]
+        self.start_poses = self._object_poses()
+
+    # --- geometry helpers -------------------------------------------------------------------------------
+    def _max_reach(self) -> float:
+        """Distance from the shoulder-lift axis to the tool with the arm stretched out."""
+        stretched = np.clip(np.zeros(self.kin.dof), self.kin.lower, self.kin.upper)
+        _, pos = self.kin.link_frames(stretched)
+        return float(np.linalg.norm(pos[0, -1] - pos[0, 2]))
+
+    @property
+    def start_norm(self) -> np.ndarray:
+        """The home tool position in normalised workspace coordinates (the start of every trajectory)."""
+        return self.task.workspace.to_norm(self.kin.tool_position(self.home)[0])
+
+    def solve_ik(self, target: np.ndarray, seed_q: np.ndarray) -> tuple[np.ndarray | None, str]:
+        """A collision-free joint configuration reaching `target`, preferring one close to `seed_q`."""
+        if np.linalg.norm(target - self.shoulder) > self.reach:
+            return None, "out_of_reach"
+        s = self.settings
+        seeds = np.vstack(
+            [
+                seed_q,
+                self.home,
+                self.rng.uniform(self.kin.lower, self.kin.upper, (s.ik_seeds - 2, self.kin.dof)),
+            ]
+        )
+        found_any = False
+        for _ in range(3):
+            q, err = self.kin.inverse_position(target, seeds, tol=s.ik_tolerance * 0.5)
+            ok = err < s.ik_tolerance
+            if ok.any():
+                found_any = True
+                cand = q[ok]
+                free = ~self.collision.in_collision(cand)
+                if free.any():
+                    cand = cand[free]
+                    return cand[np.argmin(np.abs(cand - seed_q).sum(axis=1))], ""
+                seeds = np.vstack(
+                    [q[~ok], self.rng.uniform(self.kin.lower, self.kin.upper, (ok.sum(), self.kin.dof))]
+                )
+            else:
+                seeds = self.rng.uniform(self.kin.lower, self.kin.upper, (s.ik_seeds, self.kin.dof))
+        return None, "target_in_collision" if found_any else "no_ik"
+
+    def plan_command(self, command: Command) -> tuple[np.ndarray | None, str, np.ndarray | None, str, dict]:
+        """Joint path home -> targets (not yet back), or the reason it does not exist."""
+        timings = {"ik": 0.0, "plan": 0.0}
+        q_prev, path, planners = self.home, [self.home[None]], set()
+        if command.kind == "ee_waypoints":
+            targets = self.task.workspace.to_world(np.atleast_2d(command.values))
+            goals = []
+            for target in targets:
+                t0 = time.perf_counter()
+                q, reason = self.solve_ik(target, q_prev)
+                timings["ik"] += time.perf_counter() - t0
+                if q is None:
+                    return None, reason, targets, "", timings
+                goals.append(q)
+                q_prev = q
+        elif command.kind == "joint_target":
+            targets = None
+            goal = np.asarray(command.values, dtype=np.float64)
+            if np.any(goal < self.kin.lower - 1e-9) or np.any(goal > self.kin.upper + 1e-9):
+                raise ValueError("joint target outside the joint limits")
+            if self.collision.in_collision(goal[None])[0]:
+                return None, "target_in_collision", None, "", timings
+            goals = [goal]
+        else:
+            raise ValueError(f"unknown command kind {command.kind!r}")
+        q_prev = self.home
+        for goal in goals:
+            res = self.planner.plan(q_prev, goal)
+            timings["plan"] += res.seconds
+            if res.path is None:
+                return None, "no_plan", targets, "", timings
+            path.append(res.path[1:])
+            planners.add(res.planner)
+            q_prev = goal
+        planner = "rrtconnect" if "rrtconnect" in planners else "direct"
+        return np.concatenate(path), "", targets, planner, timings
+
+    # --- simulation ---------------------------------------------------------------------------------------
+    def _object_poses(self) -> np.ndarray:
+        return np.array([np.concatenate([e.pose.p, e.pose.q]) for e in self._object_entities])
+
+    def _render(self) -> np.ndarray:
+        self.sim.scene.update_render()
+        self._camera.capture()
+        return self._camera.get_obs(rgb=True, depth=False, segmentation=False, position=False)["rgb"][
+            0
+        ].numpy()
+
+    def _touching(self) -> np.ndarray:
+        touched = np.zeros(len(self._object_entities), dtype=bool)
+        for contact in self.sim.scene.px.get_contacts():
+            a, b = contact.bodies[0].entity.name, contact.bodies[1].entity.name
+            if a in self._arm_entity_names and b in self._object_index:
+                obj = self._object_index[b]
+            elif b in self._arm_entity_names and a in self._object_index:
+                obj = self._object_index[a]
+            else:
+                continue
+            if any(np.any(p.impulse != 0) or p.separation < 1e-3 for p in contact.points):
+                touched[obj] = True
+        return touched
+
+    def _timed_path(self, path: np.ndarray) -> np.ndarray:
+        """Joint targets at the control rate along a piecewise-linear path at max_joint_speed."""
+        s = self.settings
+        dt = 1.0 / s.control_freq
+        seg = np.abs(np.diff(path, axis=0)).max(axis=1) / s.max_joint_speed
+        t_knots = np.concatenate([[0.0], np.cumsum(seg)])
+        t = np.arange(0.0, t_knots[-1] + dt, dt)
+        return np.stack([np.interp(t, t_knots, path[:, j]) for j in range(path.shape[1])], axis=1)
+
+    def reset(self) -> None:
+        """Robot at home, every object back at its start pose, at rest."""
+        self.env.reset()
+
+    def rollout(self, command: Command) -> Rollout:
+        """Plan and, if feasible, execute and record one command. The scene is reset first."""
+        t_start = time.perf_counter()
+        out_path, reason, targets, planner, timings = self.plan_command(command)
+        if out_path is None:
+            timings["total"] = time.perf_counter() - t_start
+            return Rollout(command, False, reason, ee_targets=targets, timings=timings)
+        s = self.settings
+        out = self._timed_path(out_path)
+        dwell = np.repeat(out[-1:], max(int(round(s.dwell_seconds * s.control_freq)), 0), axis=0)
+        back = self._timed_path(out_path[::-1])
+        settle = np.repeat(self.home[None], max(int(round(s.settle_seconds * s.control_freq)), 1), axis=0)
+        schedule = np.concatenate([out, dwell, back, settle])
+
+        self.reset()
+        substeps = s.sim_freq // s.control_freq
+        per_frame = s.control_freq // s.fps
+        rec = {k: [] for k in ("state", "action", "ee_pos", "object_poses", "contacts", "images")}
+        t_sim = t_render = 0.0
+        touched_since = np.zeros(len(self._object_entities), dtype=bool)
+
+        def record(action: np.ndarray) -> None:
+            nonlocal t_render, touched_since
+            t0 = time.perf_counter()
+            rec["images"].append(self._render())
+            t_render += time.perf_counter() - t0
+            rec["state"].append(np.asarray(self._arm.qpos, dtype=np.float32))
+            rec["action"].append(action.astype(np.float32))
+            rec["ee_pos"].append(np.asarray(self._tool.entity_pose.p, dtype=np.float32))
+            rec["object_poses"].append(self._object_poses().astype(np.float32))
+            rec["contacts"].append(touched_since.astype(np.float32))
+            touched_since = np.zeros_like(touched_since)
+
+        record(self.home)
+        touched_any = np.zeros_like(touched_since)
+        t0 = time.perf_counter()
+        for i, target in enumerate(schedule, start=1):
+            self.agent.set_action(torch.as_tensor(target, dtype=torch.float32)[None])
+            for _ in range(substeps):
+                self.agent.before_simulation_step()
+                self.sim.scene.px.step()
+                touching = self._touching()
+                touched_since |= touching
+                touched_any |= touching
+            if i % per_frame == 0 and i < len(schedule):
+                t_sim += time.perf_counter() - t0
+                record(target)
+                t0 = time.perf_counter()
+        # The behaviour image is taken with the arm exactly at home, so only the scene's change shows.
+        self._arm.qpos = self.home
+        self._arm.qvel = np.zeros(self.kin.dof)
+        t_sim += time.perf_counter() - t0
+        record(self.home)
+
+        frames = Frames(**{k: np.stack(v) for k, v in rec.items()})
+        final = frames.object_poses[-1].astype(np.float64)
+        timings.update(sim=t_sim, render=t_render, total=time.perf_counter() - t_start)
+        return Rollout(
+            command,
+            True,
+            ee_targets=targets,
+            joint_path=np.concatenate([out_path, out_path[::-1][1:]]),
+            planner=planner,
+            frames=frames,
+            touched=touched_any,
+            displacement=np.linalg.norm(final[:, :3] - self.start_poses[:, :3], axis=1),
+            final_poses=final,
+            timings=timings,
+        )
+
+    def rollout_batch(self, commands: list[Command]) -> list[Rollout]:
+        """Several commands, in order (the interface a batched GPU backend would implement at once)."""
+        return [self.rollout(c) for c in commands]
+
+    def close(self) -> None:
+        self.env.close()

@@ -1,0 +1,40 @@
+"""The NovEB paper's scene: a table in front of the robot with a gray box (left), a can (front centre),
+a blue box (right) and a ball (back centre, beyond the arm's reach: it moves only when pushed by
+another object). Objects are light enough to move on contact."""
+
+from __future__ import annotations
+
+from mani_skill.utils.registration import register_env
+
+from babblegen.scene import CameraSpec, ObjectSpec, TaskSpec, WorkspaceBox
+from babblegen.world.collision import Box
+
+from .registry import register_task
+from .tabletop import TabletopEnv
+
+TABLE_TOP = 0.70
+
+SPEC = register_task(
+    TaskSpec(
+        name="noveb_tabletop",
+        env_id="NovEBTabletop-v1",
+        description=__doc__,
+        # x 0.45..1.35 (depth), y -0.6..0.6 (width), top at 0.70 m
+        table=Box("table", (0.90, 0.0, TABLE_TOP / 2), (0.45, 0.60, TABLE_TOP / 2)),
+        objects=(
+            ObjectSpec("gray_box", "box", (0.05, 0.05, 0.05), (0.45, 0.45, 0.45, 1.0), 0.20, (0.78, 0.22)),
+            ObjectSpec("can", "cylinder", (0.033, 0.06), (0.85, 0.1, 0.1, 1.0), 0.10, (0.72, -0.08)),
+            ObjectSpec("blue_box", "box", (0.05, 0.05, 0.05), (0.1, 0.25, 0.85, 1.0), 0.20, (0.78, -0.38)),
+            ObjectSpec("ball", "sphere", (0.04,), (0.95, 0.8, 0.1, 1.0), 0.05, (1.10, -0.08)),
+        ),
+        # the normalised [0,1]^3 box: over the table, from the table top to 0.3 m above it
+        workspace=WorkspaceBox(low=(0.45, -0.55, TABLE_TOP), high=(1.05, 0.35, TABLE_TOP + 0.30)),
+        # PR2's head camera: 0.38 m above the shoulders, tilted down at the table
+        camera=CameraSpec(eye=(0.05, 0.0, 1.32), target=(0.88, -0.08, TABLE_TOP), fov=0.92),
+    )
+)
+
+
+@register_env(SPEC.env_id, max_episode_steps=100_000)
+class NovEBTabletopEnv(TabletopEnv):
+    task_spec = SPEC

@@ -1,0 +1,139 @@
+"""A generic ManiSkill tabletop env built from a `TaskSpec`: a box table, free objects, a head camera.
+
+Scene modules subclass `TabletopEnv`, set `task_spec`, and register with `@register_env`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import sapien
+import torch
+from mani_skill.envs.sapien_env import BaseEnv
+from mani_skill.sensors.camera import CameraConfig
+from mani_skill.utils import sapien_utils
+from mani_skill.utils.structs import Pose
+from mani_skill.utils.structs.types import SimConfig
+
+from babblegen.scene import ObjectSpec, TaskSpec
+
+from . import pr2_arm  # noqa: F401  (registers the agent)
+
+# A URDF/SAPIEN cylinder's axis is x; this turns it upright.
+_UPRIGHT = [np.sqrt(0.5), 0.0, -np.sqrt(0.5), 0.0]
+
+
+class TabletopEnv(BaseEnv):
+    """Table, objects and a fixed head camera around the PR2-like arm; every reset restores start poses."""
+
+    SUPPORTED_ROBOTS = ["pr2_like_arm"]
+    task_spec: TaskSpec
+
+    def __init__(
+        self,
+        *args,
+        robot_uids: str = "pr2_like_arm",
+        camera_width: int = 128,
+        camera_height: int = 128,
+        sim_freq: int = 100,
+        control_freq: int = 20,
+        **kwargs,
+    ):
+        self.camera_width, self.camera_height = camera_width, camera_height
+        self._sim_freq, self._control_freq = sim_freq, control_freq
+        self.objects: dict[str, object] = {}
+        super().__init__(*args, robot_uids=robot_uids, **kwargs)
+
+    @property
+    def _default_sim_config(self):
+        return SimConfig(sim_freq=self._sim_freq, control_freq=self._control_freq)
+
+    @property
+    def _default_sensor_configs(self):
+        cam = self.task_spec.camera
+        pose = sapien_utils.look_at(eye=list(cam.eye), target=list(cam.target))
+        return [
+            CameraConfig(
+                "head",
+                pose=pose,
+                width=self.camera_width,
+                height=self.camera_height,
+                fov=cam.fov,
+                near=0.05,
+                far=10,
+            )
+        ]
+
+    @property
+    def _default_human_render_camera_configs(self):
+        pose = sapien_utils.look_at([1.9, -1.3, 1.7], [0.55, 0.0, 0.7])
+        return CameraConfig("overview", pose=pose, width=512, height=512, fov=0.9, near=0.05, far=10)
+
+    def _load_lighting(self, options: dict):
+        # no shadows: on a CPU renderer they cost time and add nothing to the behaviour descriptor
+        self.scene.set_ambient_light([0.45, 0.45, 0.45])
+        self.scene.add_directional_light([0.3, 0.4, -1.0], [0.8, 0.8, 0.8], shadow=False)
+
+    def _load_agent(self, options: dict):
+        super()._load_agent(options, sapien.Pose())
+
+    def _load_scene(self, options: dict):
+        spec = self.task_spec
+        t = spec.table
+        builder = self.scene.create_actor_builder()
+        builder.add_box_collision(half_size=list(t.half_extents))
+        builder.add_box_visual(
+            half_size=list(t.half_extents),
+            material=sapien.render.RenderMaterial(base_color=[0.55, 0.4, 0.28, 1]),
+        )
+        builder.initial_pose = sapien.Pose(p=list(t.center))
+        self.table = builder.build_static(name="table")
+        floor = self.scene.create_actor_builder()
+        floor.add_box_collision(half_size=[5, 5, 0.01])
+        floor.add_box_visual(
+            half_size=[5, 5, 0.01], material=sapien.render.RenderMaterial(base_color=[0.8, 0.8, 0.78, 1])
+        )
+        floor.initial_pose = sapien.Pose(p=[0, 0, -0.01])
+        self.floor = floor.build_static(name="floor")
+        for obj in spec.objects:
+            self.objects[obj.name] = self._build_object(obj)
+
+    def _build_object(self, obj: ObjectSpec):
+        builder = self.scene.create_actor_builder()
+        mat = sapien.render.RenderMaterial(base_color=list(obj.color))
+        density = obj.mass / obj.volume
+        if obj.shape == "box":
+            builder.add_box_collision(half_size=list(obj.size), density=density)
+            builder.add_box_visual(half_size=list(obj.size), material=mat)
+        elif obj.shape == "cylinder":
+            pose = sapien.Pose(q=_UPRIGHT)
+            builder.add_cylinder_collision(
+                pose=pose, radius=obj.size[0], half_length=obj.size[1], density=density
+            )
+            builder.add_cylinder_visual(pose=pose, radius=obj.size[0], half_length=obj.size[1], material=mat)
+        elif obj.shape == "sphere":
+            builder.add_sphere_collision(radius=obj.size[0], density=density)
+            builder.add_sphere_visual(radius=obj.size[0], material=mat)
+        else:
+            raise ValueError(f"unknown object shape {obj.shape!r}")
+        rest = self.task_spec.rest_pose(obj)
+        builder.initial_pose = sapien.Pose(p=list(rest[:3]), q=list(rest[3:]))
+        return builder.build(name=obj.name)
+
+    def _initialize_episode(self, env_idx: torch.Tensor, options: dict):
+        with torch.device(self.device):
+            self.agent.reset(torch.as_tensor(self.agent.keyframes["home"].qpos, dtype=torch.float32)[None])
+            for obj in self.task_spec.objects:
+                rest = torch.tensor(self.task_spec.rest_pose(obj), dtype=torch.float32)[None]
+                self.objects[obj.name].set_pose(Pose.create_from_pq(p=rest[:, :3], q=rest[:, 3:]))
+
+    def evaluate(self):
+        return {}
+
+    def _get_obs_extra(self, info: dict):
+        return {}
+
+    def compute_dense_reward(self, obs, action, info):
+        return torch.zeros(self.num_envs, device=self.device)
+
+    def compute_normalized_dense_reward(self, obs, action, info):
+        return self.compute_dense_reward(obs, action, info)
