@@ -1,0 +1,52 @@
+"""Explorers: NovEB and the random motor babbling control, behind one ask/tell interface."""
+
+from __future__ import annotations
+
+from dataclasses import is_dataclass
+from typing import Any
+
+import numpy as np
+
+from babblegen.explorers.base import Candidate, Evaluation, Explorer
+from babblegen.explorers.noveb import NovEB, NovEBConfig
+from babblegen.explorers.random_babbling import RandomBabbling, RandomBabblingConfig
+
+__all__ = [
+    "EXPLORERS",
+    "Candidate",
+    "Evaluation",
+    "Explorer",
+    "NovEB",
+    "NovEBConfig",
+    "RandomBabbling",
+    "RandomBabblingConfig",
+    "make_explorer",
+]
+
+EXPLORERS: dict[str, type[Explorer]] = {"noveb": NovEB, "random": RandomBabbling}
+
+
+def make_explorer(
+    name: str,
+    config: Any = None,
+    rng_seed: int = 0,
+    joint_limits: np.ndarray | None = None,
+    start_norm: np.ndarray | None = None,
+) -> Explorer:
+    """Build a registered explorer.
+
+    ``config`` is ``None`` (defaults), a dict of options, or the explorer's config dataclass. NovEB needs
+    ``start_norm`` (the start pose in normalised workspace coordinates), random babbling ``joint_limits``
+    (``(7, 2)`` radians); each ignores the other.
+    """
+    try:
+        cls = EXPLORERS[name]
+    except KeyError:
+        raise ValueError(f"unknown explorer {name!r}; known: {sorted(EXPLORERS)}") from None
+    if config is not None and not isinstance(config, dict) and not is_dataclass(config):
+        raise TypeError(f"config must be None, a dict or a config dataclass, got {type(config).__name__}")
+    if cls is NovEB and start_norm is None:
+        raise ValueError("explorer 'noveb' needs start_norm")
+    if cls is RandomBabbling and joint_limits is None:
+        raise ValueError("explorer 'random' needs joint_limits")
+    return cls(config, rng_seed, joint_limits=joint_limits, start_norm=start_norm)  # type: ignore[call-arg]

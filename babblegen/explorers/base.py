@@ -1,0 +1,118 @@
+"""The ask/tell interface shared by all explorers.
+
+An explorer proposes candidates (``ask``), the caller evaluates them in the world and computes their
+behaviour descriptors, and the explorer learns from the outcome (``tell``). Explorers only ever see
+descriptors (packed bit codes), never the simulator's ground truth.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+__all__ = ["Candidate", "Evaluation", "Explorer", "build_config", "check_descriptors"]
+
+KIND_WAYPOINTS = "ee_waypoints"
+KIND_JOINTS = "joint_target"
+
+
+@dataclass
+class Candidate:
+    """One attempt proposed by an explorer."""
+
+    index: int  # attempt index in the run (0, 1, 2, ... across generations, assigned by the explorer)
+    generation: int
+    kind: str  # "ee_waypoints" (genome = (n, 3) normalised waypoints) or "joint_target" (genome = (7,) rad)
+    genome: np.ndarray
+    parent: int | None  # attempt index of the parent, None for random ones
+
+
+@dataclass
+class Evaluation:
+    """What the explorer made of one told candidate."""
+
+    novelty: float | None  # None for infeasible candidates (no descriptor)
+    archived: bool
+
+
+class Explorer(ABC):
+    """Generational ask/tell explorer.
+
+    ``ask`` returns the current batch; calling it again before ``tell`` returns the same batch (so a run
+    restored from a checkpoint taken between the two re-issues it). ``tell`` takes the same candidates in
+    the same order with one descriptor each (``None`` when the candidate was infeasible).
+    """
+
+    name: str
+    config: Any
+
+    @abstractmethod
+    def ask(self) -> list[Candidate]: ...
+
+    @abstractmethod
+    def tell(self, candidates: list[Candidate], descriptors: list[np.ndarray | None]) -> list[Evaluation]: ...
+
+    @abstractmethod
+    def state_dict(self) -> dict[str, Any]: ...
+
+    @abstractmethod
+    def load_state_dict(self, state: dict[str, Any]) -> None: ...
+
+    @property
+    @abstractmethod
+    def archive_size(self) -> int: ...
+
+    @property
+    @abstractmethod
+    def generation(self) -> int:
+        """Number of completed ask/tell rounds."""
+
+    @property
+    def done(self) -> bool:
+        """True once the configured number of generations has been told."""
+        return self.generation >= int(getattr(self.config, "generations", 0))
+
+
+def build_config[C](cls: type[C], config: C | dict[str, Any] | None) -> C:
+    """Turn ``None``, a dict or an instance into a validated config dataclass of type ``cls``."""
+    if config is None:
+        return cls()
+    if isinstance(config, cls):
+        return dataclasses.replace(config)  # re-run validation, detach from the caller
+    if isinstance(config, dict):
+        names = {f.name for f in dataclasses.fields(cls)}  # type: ignore[arg-type]
+        unknown = sorted(set(config) - names)
+        if unknown:
+            raise ValueError(f"unknown {cls.__name__} options: {unknown}; known: {sorted(names)}")
+        return cls(**config)
+    raise TypeError(f"expected {cls.__name__}, dict or None, got {type(config).__name__}")
+
+
+def check_descriptors(
+    pending: list[Candidate], candidates: list[Candidate], descriptors: list[np.ndarray | None]
+) -> list[np.ndarray | None]:
+    """Check a ``tell`` call against the outstanding batch; returns the descriptors as 1-D uint64 arrays."""
+    if not pending:
+        raise RuntimeError("tell() called without an outstanding ask()")
+    if len(candidates) != len(descriptors):
+        raise ValueError(f"{len(candidates)} candidates but {len(descriptors)} descriptors")
+    if [c.index for c in candidates] != [c.index for c in pending]:
+        raise ValueError("tell() must receive the candidates of the last ask(), in the same order")
+    out: list[np.ndarray | None] = []
+    width: int | None = None
+    for d in descriptors:
+        if d is None:
+            out.append(None)
+            continue
+        a = np.asarray(d)
+        if a.dtype != np.uint64 or a.ndim != 1:
+            raise ValueError(f"a descriptor must be a 1-D uint64 array, got {a.shape} {a.dtype}")
+        if width is not None and a.shape[0] != width:
+            raise ValueError("descriptors of one batch must have the same width")
+        width = a.shape[0]
+        out.append(a)
+    return out

@@ -1,0 +1,235 @@
+"""Novelty-driven Evolutionary Babbling (Maestre et al.): novelty search with NSGA-II survival.
+
+Generation 0 asks ``population`` random genomes (one final point uniform in [0, 1]^3). Every later generation
+asks children of the current parents: binary tournament on (rank, crowding), optional crossover, Gaussian
+mutation with probability ``mutation_prob`` and waypoint extension with probability ``extend_prob``. As in the
+paper, a child that is neither mutated nor extended is a copy of its parent and is evaluated again. ``tell``
+recomputes the novelty of parents ∪ feasible children against that union plus the archive, archives the most
+novel newly evaluated child, and keeps ``population`` survivors by NSGA-II on the single objective novelty,
+i.e. elitist truncation.
+
+Infeasible candidates (no IK solution or no collision-free plan: descriptor ``None``) have no behaviour, so
+they get no novelty, are never archived and never survive selection; they still consume an attempt index.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from babblegen.explorers.base import (
+    KIND_WAYPOINTS,
+    Candidate,
+    Evaluation,
+    Explorer,
+    build_config,
+    check_descriptors,
+)
+from babblegen.genome import crossover, extend, gaussian_mutation, random_genome
+from babblegen.novelty import Archive, MostNovel, novelty
+from babblegen.selection import binary_tournament, crowding_distance, non_dominated_sort, nsga2_select
+
+__all__ = ["NovEB", "NovEBConfig"]
+
+
+@dataclass
+class NovEBConfig:
+    """NovEB parameters; the defaults are those of the paper's appendix.
+
+    ``keep_fraction`` is the fraction of parents ∪ children that survives, so each generation asks
+    ``population * (1 / keep_fraction - 1)`` children (12 with the defaults). ``mutation_prob`` and
+    ``extend_prob`` are per individual; ``sigma`` is in normalised workspace units. Crossover is an option
+    the paper does not use (``crossover_prob = 0``); see :func:`babblegen.genome.crossover`.
+    """
+
+    population: int = 12
+    generations: int = 2000
+    k: int = 3
+    keep_fraction: float = 0.5
+    mutation_prob: float = 0.3
+    sigma: float = 0.3
+    extend_prob: float = 0.05
+    crossover_prob: float = 0.0
+    archive_per_generation: int = 1
+    archive_policy: str = field(default="most_novel")
+
+    def __post_init__(self) -> None:
+        if int(self.population) != self.population or self.population < 2:
+            raise ValueError(f"population must be an integer >= 2, got {self.population}")
+        if int(self.generations) != self.generations or self.generations < 1:
+            raise ValueError(f"generations must be an integer >= 1, got {self.generations}")
+        if int(self.k) != self.k or self.k < 1:
+            raise ValueError(f"k must be an integer >= 1, got {self.k}")
+        if not 0.0 < self.keep_fraction < 1.0:
+            raise ValueError(
+                f"keep_fraction must be in (0, 1) so that children exist, got {self.keep_fraction}"
+            )
+        for name in ("mutation_prob", "extend_prob", "crossover_prob"):
+            p = getattr(self, name)
+            if not 0.0 <= p <= 1.0:
+                raise ValueError(f"{name} must be a probability in [0, 1], got {p}")
+        if not self.sigma >= 0.0:
+            raise ValueError(f"sigma must be >= 0, got {self.sigma}")
+        if int(self.archive_per_generation) != self.archive_per_generation or self.archive_per_generation < 0:
+            raise ValueError(
+                f"archive_per_generation must be an integer >= 0, got {self.archive_per_generation}"
+            )
+        if self.archive_policy != "most_novel":
+            raise ValueError(f"unknown archive_policy {self.archive_policy!r}; known: ['most_novel']")
+        if self.n_children < 1:
+            raise ValueError(f"keep_fraction {self.keep_fraction} leaves no room for children")
+
+    @property
+    def n_children(self) -> int:
+        """Children asked per generation after the first."""
+        return int(round(self.population * (1.0 / self.keep_fraction - 1.0)))
+
+
+class NovEB(Explorer):
+    """Novelty search over end-effector waypoint lists (see the module docstring for the generation flow)."""
+
+    name = "noveb"
+
+    def __init__(
+        self,
+        config: NovEBConfig | dict[str, Any] | None = None,
+        rng_seed: int = 0,
+        *,
+        start_norm: np.ndarray,
+        joint_limits: np.ndarray | None = None,
+    ) -> None:
+        self.config = build_config(NovEBConfig, config)
+        start = np.asarray(start_norm, dtype=np.float64)
+        if start.shape != (3,) or not np.all(np.isfinite(start)):
+            raise ValueError(f"start_norm must be a finite (3,) array, got {start}")
+        self.start_norm = start
+        self.rng = np.random.default_rng(rng_seed)
+        self.archive = Archive()
+        self.policy = MostNovel(self.config.archive_per_generation)
+        self._generation = 0
+        self._next_index = 0
+        self._pending: list[Candidate] = []
+        # Current parents: genomes, descriptors (p, w), attempt indices, novelty at their last evaluation.
+        self._parents: list[np.ndarray] = []
+        self._parent_codes = np.zeros((0, 1), dtype=np.uint64)
+        self._parent_index = np.zeros(0, dtype=np.int64)
+        self._parent_novelty = np.zeros(0, dtype=np.float64)
+
+    # ------------------------------------------------------------------ properties
+    @property
+    def generation(self) -> int:
+        return self._generation
+
+    @property
+    def archive_size(self) -> int:
+        return len(self.archive)
+
+    @property
+    def parents(self) -> list[int]:
+        """Attempt indices of the current parents (the survivors of the last selection)."""
+        return [int(i) for i in self._parent_index]
+
+    # ------------------------------------------------------------------ ask / tell
+    def _candidate(self, genome: np.ndarray, parent: int | None) -> Candidate:
+        c = Candidate(self._next_index, self._generation, KIND_WAYPOINTS, genome, parent)
+        self._next_index += 1
+        return c
+
+    def ask(self) -> list[Candidate]:
+        if not self._pending:
+            if not self._parents:
+                self._pending = [
+                    self._candidate(random_genome(self.rng), None) for _ in range(self.config.population)
+                ]
+            else:
+                self._pending = self._make_children()
+        return [dataclasses.replace(c, genome=c.genome.copy()) for c in self._pending]
+
+    def _make_children(self) -> list[Candidate]:
+        cfg = self.config
+        n = cfg.n_children
+        objectives = self._parent_novelty[:, None]
+        rank = non_dominated_sort(objectives)
+        crowd = crowding_distance(objectives, rank)
+        first = binary_tournament(rank, crowd, n, self.rng)
+        mates = binary_tournament(rank, crowd, n, self.rng)
+        draws = self.rng.random((n, 3))  # crossover, mutation, extension decisions
+        children = []
+        for i in range(n):
+            p = int(first[i])
+            g = self._parents[p]
+            if draws[i, 0] < cfg.crossover_prob:
+                g = crossover(g, self._parents[int(mates[i])], self.rng)
+            if draws[i, 1] < cfg.mutation_prob:
+                g = gaussian_mutation(g, cfg.sigma, self.rng)
+            if draws[i, 2] < cfg.extend_prob:
+                g = extend(g, self.start_norm, self.rng)
+            children.append(self._candidate(np.array(g, dtype=np.float64), int(self._parent_index[p])))
+        return children
+
+    def tell(self, candidates: list[Candidate], descriptors: list[np.ndarray | None]) -> list[Evaluation]:
+        codes = check_descriptors(self._pending, candidates, descriptors)
+        pending = self._pending
+        feasible = [i for i, d in enumerate(codes) if d is not None]
+        n_par = len(self._parents)
+        evaluations = [Evaluation(None, False) for _ in pending]
+        if feasible:
+            new_codes = np.stack([codes[i] for i in feasible])  # type: ignore[misc]
+            if n_par and self._parent_codes.shape[1] != new_codes.shape[1]:
+                raise ValueError("descriptor width changed during the run")
+            pool_codes = np.concatenate([self._parent_codes, new_codes]) if n_par else new_codes
+            nov = novelty(pool_codes, pool_codes, self.archive.descriptors, self.config.k)
+            new_nov = nov[n_par:]
+            for j, i in enumerate(feasible):
+                evaluations[i].novelty = float(new_nov[j])
+            for j in self.policy.select(new_nov, new_codes, self.archive):
+                c = pending[feasible[int(j)]]
+                self.archive.add(new_codes[j], {"index": c.index, "generation": c.generation})
+                evaluations[feasible[int(j)]].archived = True
+            pool_genomes = self._parents + [pending[i].genome for i in feasible]
+            pool_index = np.concatenate([self._parent_index, [pending[i].index for i in feasible]])
+            keep = nsga2_select(nov[:, None], min(self.config.population, len(pool_genomes)))
+            self._parents = [pool_genomes[i] for i in keep]
+            self._parent_codes = pool_codes[keep]
+            self._parent_index = pool_index[keep].astype(np.int64)
+            self._parent_novelty = nov[keep]
+        self._pending = []
+        self._generation += 1
+        return evaluations
+
+    # ------------------------------------------------------------------ checkpointing
+    def state_dict(self) -> dict[str, Any]:
+        return {
+            "name": self.name,
+            "config": dataclasses.asdict(self.config),
+            "start_norm": self.start_norm.copy(),
+            "rng": self.rng.bit_generator.state,
+            "generation": self._generation,
+            "next_index": self._next_index,
+            "pending": [dataclasses.asdict(c) for c in self._pending],
+            "parents": [g.copy() for g in self._parents],
+            "parent_codes": self._parent_codes.copy(),
+            "parent_index": self._parent_index.copy(),
+            "parent_novelty": self._parent_novelty.copy(),
+            "archive": self.archive.state_dict(),
+        }
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        if state.get("name") != self.name:
+            raise ValueError(f"state is for explorer {state.get('name')!r}, not {self.name!r}")
+        self.config = build_config(NovEBConfig, dict(state["config"]))
+        self.policy = MostNovel(self.config.archive_per_generation)
+        self.start_norm = np.asarray(state["start_norm"], dtype=np.float64).copy()
+        self.rng.bit_generator.state = state["rng"]
+        self._generation = int(state["generation"])
+        self._next_index = int(state["next_index"])
+        self._pending = [Candidate(**{**c, "genome": np.array(c["genome"])}) for c in state["pending"]]
+        self._parents = [np.array(g, dtype=np.float64) for g in state["parents"]]
+        self._parent_codes = np.array(state["parent_codes"], dtype=np.uint64)
+        self._parent_index = np.array(state["parent_index"], dtype=np.int64)
+        self._parent_novelty = np.array(state["parent_novelty"], dtype=np.float64)
+        self.archive = Archive()
+        self.archive.load_state_dict(state["archive"])

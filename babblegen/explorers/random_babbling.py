@@ -1,0 +1,136 @@
+"""Random motor babbling, the paper's control: uniform random joint targets for the arm.
+
+Each ``ask`` returns ``population`` candidates of kind ``"joint_target"``, each drawn uniformly within the
+joint limits (continuous joints are given as [-pi, pi]). The descriptors told back do not steer anything:
+novelty is measured exactly as NovEB measures it (``k`` nearest among the batch and an archive that receives
+the most novel new individual of each batch), so the two explorers' novelty columns can be compared.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from babblegen.explorers.base import (
+    KIND_JOINTS,
+    Candidate,
+    Evaluation,
+    Explorer,
+    build_config,
+    check_descriptors,
+)
+from babblegen.novelty import Archive, MostNovel, novelty
+
+__all__ = ["RandomBabbling", "RandomBabblingConfig"]
+
+
+@dataclass
+class RandomBabblingConfig:
+    """Batch size, number of batches, and the novelty measurement (same meaning as in NovEB)."""
+
+    population: int = 12
+    generations: int = 2000
+    k: int = 3
+    archive_per_generation: int = 1
+
+    def __post_init__(self) -> None:
+        if int(self.population) != self.population or self.population < 1:
+            raise ValueError(f"population must be an integer >= 1, got {self.population}")
+        if int(self.generations) != self.generations or self.generations < 1:
+            raise ValueError(f"generations must be an integer >= 1, got {self.generations}")
+        if int(self.k) != self.k or self.k < 1:
+            raise ValueError(f"k must be an integer >= 1, got {self.k}")
+        if int(self.archive_per_generation) != self.archive_per_generation or self.archive_per_generation < 0:
+            raise ValueError(
+                f"archive_per_generation must be an integer >= 0, got {self.archive_per_generation}"
+            )
+
+
+class RandomBabbling(Explorer):
+    """Uniform random joint targets; novelty is recorded for comparison only."""
+
+    name = "random"
+
+    def __init__(
+        self,
+        config: RandomBabblingConfig | dict[str, Any] | None = None,
+        rng_seed: int = 0,
+        *,
+        joint_limits: np.ndarray,
+        start_norm: np.ndarray | None = None,
+    ) -> None:
+        self.config = build_config(RandomBabblingConfig, config)
+        limits = np.asarray(joint_limits, dtype=np.float64)
+        if limits.ndim != 2 or limits.shape[1] != 2 or not np.all(np.isfinite(limits)):
+            raise ValueError(f"joint_limits must be a finite (n_joints, 2) array, got shape {limits.shape}")
+        if np.any(limits[:, 0] > limits[:, 1]):
+            raise ValueError("joint_limits must have lower <= upper for every joint")
+        self.joint_limits = limits
+        self.rng = np.random.default_rng(rng_seed)
+        self.archive = Archive()
+        self.policy = MostNovel(self.config.archive_per_generation)
+        self._generation = 0
+        self._next_index = 0
+        self._pending: list[Candidate] = []
+
+    @property
+    def generation(self) -> int:
+        return self._generation
+
+    @property
+    def archive_size(self) -> int:
+        return len(self.archive)
+
+    def ask(self) -> list[Candidate]:
+        if not self._pending:
+            lo, hi = self.joint_limits[:, 0], self.joint_limits[:, 1]
+            targets = lo + (hi - lo) * self.rng.random((self.config.population, lo.shape[0]))
+            for t in targets:
+                self._pending.append(Candidate(self._next_index, self._generation, KIND_JOINTS, t, None))
+                self._next_index += 1
+        return [dataclasses.replace(c, genome=c.genome.copy()) for c in self._pending]
+
+    def tell(self, candidates: list[Candidate], descriptors: list[np.ndarray | None]) -> list[Evaluation]:
+        codes = check_descriptors(self._pending, candidates, descriptors)
+        evaluations = [Evaluation(None, False) for _ in codes]
+        feasible = [i for i, d in enumerate(codes) if d is not None]
+        if feasible:
+            batch = np.stack([codes[i] for i in feasible])  # type: ignore[misc]
+            nov = novelty(batch, batch, self.archive.descriptors, self.config.k)
+            for j, i in enumerate(feasible):
+                evaluations[i].novelty = float(nov[j])
+            for j in self.policy.select(nov, batch, self.archive):
+                c = self._pending[feasible[int(j)]]
+                self.archive.add(batch[j], {"index": c.index, "generation": c.generation})
+                evaluations[feasible[int(j)]].archived = True
+        self._pending = []
+        self._generation += 1
+        return evaluations
+
+    def state_dict(self) -> dict[str, Any]:
+        return {
+            "name": self.name,
+            "config": dataclasses.asdict(self.config),
+            "joint_limits": self.joint_limits.copy(),
+            "rng": self.rng.bit_generator.state,
+            "generation": self._generation,
+            "next_index": self._next_index,
+            "pending": [dataclasses.asdict(c) for c in self._pending],
+            "archive": self.archive.state_dict(),
+        }
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        if state.get("name") != self.name:
+            raise ValueError(f"state is for explorer {state.get('name')!r}, not {self.name!r}")
+        self.config = build_config(RandomBabblingConfig, dict(state["config"]))
+        self.policy = MostNovel(self.config.archive_per_generation)
+        self.joint_limits = np.asarray(state["joint_limits"], dtype=np.float64).copy()
+        self.rng.bit_generator.state = state["rng"]
+        self._generation = int(state["generation"])
+        self._next_index = int(state["next_index"])
+        self._pending = [Candidate(**{**c, "genome": np.array(c["genome"])}) for c in state["pending"]]
+        self.archive = Archive()
+        self.archive.load_state_dict(state["archive"])
