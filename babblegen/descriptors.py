@@ -103,9 +103,7 @@ class PHash:
                 raise ValueError(f"crop must be (x0, y0, x1, y1), got {crop}")
             x0, y0, x1, y1 = crop
             if not (0.0 <= x0 < x1 <= 1.0 and 0.0 <= y0 < y1 <= 1.0):
-                raise ValueError(
-                    f"crop fractions must satisfy 0 <= x0 < x1 <= 1 and 0 <= y0 < y1 <= 1: {crop}"
-                )
+                raise ValueError(f"crop fractions must satisfy 0 <= x0 < x1 <= 1 and 0 <= y0 < y1 <= 1: {crop}")
         self.name = name
         self.hash_size = int(hash_size)
         self.highfreq_factor = int(highfreq_factor)
@@ -135,9 +133,7 @@ class PHash:
     def __call__(self, image: np.ndarray) -> np.ndarray:
         import imagehash
 
-        h = imagehash.phash(
-            self.pil_image(image), hash_size=self.hash_size, highfreq_factor=self.highfreq_factor
-        )
+        h = imagehash.phash(self.pil_image(image), hash_size=self.hash_size, highfreq_factor=self.highfreq_factor)
         return pack_bits(h.hash)
 
     def hex(self, code: np.ndarray) -> str:

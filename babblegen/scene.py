@@ -27,9 +27,7 @@ class ObjectSpec:
 
     @property
     def half_height(self) -> float:
-        return {"box": lambda s: s[2], "cylinder": lambda s: s[1], "sphere": lambda s: s[0]}[self.shape](
-            self.size
-        )
+        return {"box": lambda s: s[2], "cylinder": lambda s: s[1], "sphere": lambda s: s[0]}[self.shape](self.size)
 
     @property
     def volume(self) -> float:

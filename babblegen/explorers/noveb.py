@@ -64,9 +64,7 @@ class NovEBConfig:
         if int(self.k) != self.k or self.k < 1:
             raise ValueError(f"k must be an integer >= 1, got {self.k}")
         if not 0.0 < self.keep_fraction < 1.0:
-            raise ValueError(
-                f"keep_fraction must be in (0, 1) so that children exist, got {self.keep_fraction}"
-            )
+            raise ValueError(f"keep_fraction must be in (0, 1) so that children exist, got {self.keep_fraction}")
         for name in ("mutation_prob", "extend_prob", "crossover_prob"):
             p = getattr(self, name)
             if not 0.0 <= p <= 1.0:
@@ -74,9 +72,7 @@ class NovEBConfig:
         if not self.sigma >= 0.0:
             raise ValueError(f"sigma must be >= 0, got {self.sigma}")
         if int(self.archive_per_generation) != self.archive_per_generation or self.archive_per_generation < 0:
-            raise ValueError(
-                f"archive_per_generation must be an integer >= 0, got {self.archive_per_generation}"
-            )
+            raise ValueError(f"archive_per_generation must be an integer >= 0, got {self.archive_per_generation}")
         if self.archive_policy != "most_novel":
             raise ValueError(f"unknown archive_policy {self.archive_policy!r}; known: ['most_novel']")
         if self.n_children < 1:
@@ -141,9 +137,7 @@ class NovEB(Explorer):
     def ask(self) -> list[Candidate]:
         if not self._pending:
             if not self._parents:
-                self._pending = [
-                    self._candidate(random_genome(self.rng), None) for _ in range(self.config.population)
-                ]
+                self._pending = [self._candidate(random_genome(self.rng), None) for _ in range(self.config.population)]
             else:
                 self._pending = self._make_children()
         return [dataclasses.replace(c, genome=c.genome.copy()) for c in self._pending]

@@ -44,9 +44,7 @@ class RandomBabblingConfig:
         if int(self.k) != self.k or self.k < 1:
             raise ValueError(f"k must be an integer >= 1, got {self.k}")
         if int(self.archive_per_generation) != self.archive_per_generation or self.archive_per_generation < 0:
-            raise ValueError(
-                f"archive_per_generation must be an integer >= 0, got {self.archive_per_generation}"
-            )
+            raise ValueError(f"archive_per_generation must be an integer >= 0, got {self.archive_per_generation}")
 
 
 class RandomBabbling(Explorer):

@@ -140,9 +140,7 @@ class World:
                 if free.any():
                     cand = cand[free]
                     return cand[np.argmin(np.abs(cand - seed_q).sum(axis=1))], ""
-                seeds = np.vstack(
-                    [q[~ok], self.rng.uniform(self.kin.lower, self.kin.upper, (ok.sum(), self.kin.dof))]
-                )
+                seeds = np.vstack([q[~ok], self.rng.uniform(self.kin.lower, self.kin.upper, (ok.sum(), self.kin.dof))])
             else:
                 seeds = self.rng.uniform(self.kin.lower, self.kin.upper, (s.ik_seeds, self.kin.dof))
         return None, "target_in_collision" if found_any else "no_ik"
@@ -191,9 +189,7 @@ class World:
     def _render(self) -> np.ndarray:
         self.sim.scene.update_render()
         self._camera.capture()
-        return self._camera.get_obs(rgb=True, depth=False, segmentation=False, position=False)["rgb"][
-            0
-        ].numpy()
+        return self._camera.get_obs(rgb=True, depth=False, segmentation=False, position=False)["rgb"][0].numpy()
 
     def _touching(self) -> np.ndarray:
         touched = np.zeros(len(self._object_entities), dtype=bool)

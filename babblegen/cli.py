@@ -1,0 +1,197 @@
+"""`babblegen` command line: generate a dataset (and, where installed, report on it or view it)."""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import sys
+from pathlib import Path
+
+from babblegen.config import ConfigError, RunConfig, load_toml, merge
+from babblegen.explorers.noveb import NovEBConfig
+from babblegen.world.world import WorldSettings
+
+_N, _W = NovEBConfig(), WorldSettings()
+
+
+def _positive(name: str):
+    def parse(text: str) -> int:
+        try:
+            v = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{name} must be an integer, got {text!r}") from None
+        if v < 0:
+            raise argparse.ArgumentTypeError(f"{name} must not be negative, got {v}")
+        return v
+
+    return parse
+
+
+def _prob(text: str) -> float:
+    v = float(text)
+    if not 0.0 <= v <= 1.0:
+        raise argparse.ArgumentTypeError(f"a probability must be in [0, 1], got {v}")
+    return v
+
+
+def build_parser() -> argparse.ArgumentParser:
+    from babblegen.explorers import EXPLORERS
+    from babblegen.tasks import DEFAULT_TASK, TASKS
+
+    parser = argparse.ArgumentParser(
+        prog="babblegen",
+        description=(
+            "Novelty-driven Evolutionary Babbling (NovEB): a simulated PR2-like arm explores a tabletop by "
+            "searching for movements whose outcome image is novel, and every executed movement becomes a "
+            "LeRobot episode."
+        ),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog="Run `babblegen COMMAND --help` for each command's options.",
+    )
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    g = sub.add_parser(
+        "generate",
+        help="run an explorer and write a LeRobot dataset",
+        description=(
+            "Run NovEB (or the random-babbling control) and write every executed trajectory as a LeRobot v3.0 "
+            "episode, with a sidecar table of all attempts under DIR/babblegen/. Values come from the defaults, "
+            "then --config, then the flags. Safe to interrupt (Ctrl-C / SIGTERM): the dataset is finalized and "
+            "--resume continues from the last commit point, even after a kill."
+        ),
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
+    g.add_argument("--out", required=True, type=Path, help="dataset directory (must be new or empty)")
+    g.add_argument("--resume", action="store_true", help="continue the interrupted run in --out")
+    g.add_argument("--config", type=Path, default=None, help="TOML file with run settings (flags override it)")
+    g.add_argument("--explorer", choices=sorted(EXPLORERS), default=None, help="explorer [default: noveb]")
+    g.add_argument("--task", choices=sorted(TASKS), default=None, help=f"scene [default: {DEFAULT_TASK}]")
+    g.add_argument("--seed", type=_positive("--seed"), default=None, help="run seed [default: 0]")
+    g.add_argument("--generations", type=_positive("--generations"), default=None, help=f"[default: {_N.generations}]")
+    g.add_argument(
+        "--max-attempts",
+        type=_positive("--max-attempts"),
+        default=None,
+        help="stop after this many attempted movements, rounded up to whole generations [default: all generations]",
+    )
+    g.add_argument(
+        "--population", type=int, default=None, help=f"individuals per generation [default: {_N.population}]"
+    )
+    g.add_argument("--k", type=int, default=None, help=f"nearest neighbours for novelty [default: {_N.k}]")
+    g.add_argument("--mutation-prob", type=_prob, default=None, help=f"[default: {_N.mutation_prob}]")
+    g.add_argument("--sigma", type=float, default=None, help=f"Gaussian mutation sigma [default: {_N.sigma}]")
+    g.add_argument(
+        "--extend-prob",
+        type=_prob,
+        default=None,
+        help=f"add-waypoint probability [default: {_N.extend_prob}]",
+    )
+    g.add_argument(
+        "--width", type=_positive("--width"), default=None, help=f"camera width [default: {_W.camera_width}]"
+    )
+    g.add_argument(
+        "--height",
+        type=_positive("--height"),
+        default=None,
+        help=f"camera height [default: {_W.camera_height}]",
+    )
+    g.add_argument(
+        "--fps", type=_positive("--fps"), default=None, help=f"recorded frames per second [default: {_W.fps}]"
+    )
+    g.add_argument(
+        "--checkpoint-every",
+        type=_positive("--checkpoint-every"),
+        default=None,
+        help="generations between commit points [default: 10]",
+    )
+    g.add_argument("--workers", type=_positive("--workers"), default=None, help="local rollout processes [default: 1]")
+    g.add_argument("--ray", default=None, help="evaluate on a Ray cluster: 'auto' or an address [default: off]")
+    g.add_argument(
+        "--rerun",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="write Rerun recordings [default: off]",
+    )
+    g.add_argument("--no-progress", action="store_true", help="no progress bar")
+    g.set_defaults(func=cmd_generate)
+
+    for module in ("babblegen.report_cli",):
+        with contextlib.suppress(ImportError):
+            __import__(module, fromlist=["register"]).register(sub)
+    return parser
+
+
+def _overrides(args: argparse.Namespace) -> dict:
+    return {
+        "task": args.task,
+        "explorer": args.explorer,
+        "seed": args.seed,
+        "max_attempts": args.max_attempts,
+        "checkpoint_every": args.checkpoint_every,
+        "workers": args.workers,
+        "ray": args.ray,
+        "rerun": args.rerun,
+        "noveb": {
+            "generations": args.generations,
+            "population": args.population,
+            "k": args.k,
+            "mutation_prob": args.mutation_prob,
+            "sigma": args.sigma,
+            "extend_prob": args.extend_prob,
+        },
+        "world": {"camera_width": args.width, "camera_height": args.height, "fps": args.fps},
+    }
+
+
+def cmd_generate(args: argparse.Namespace) -> int:
+    from babblegen.run import Run
+
+    if args.resume:
+        if args.config is not None:
+            raise ConfigError("--resume uses the stored configuration of the run; drop --config")
+        flat = {k: v for k, v in _overrides(args).items() if not isinstance(v, dict)}
+        flat.update({k: v for k, v in _overrides(args)["noveb"].items()})
+        flat.update({k: v for k, v in _overrides(args)["world"].items()})
+        run = Run.resume(args.out, flat)
+    else:
+        data = load_toml(args.config) if args.config else {}
+        data = merge(data, _overrides(args))
+        run = Run.start(args.out, RunConfig.from_dict(data))
+    summary = run.execute(progress=not args.no_progress and sys.stderr.isatty() or not args.no_progress)
+    for line in summary.lines():
+        print(line)
+    if summary.interrupted:
+        print(f"resume with: babblegen generate --out {summary.out} --resume")
+        return 130
+    print(
+        "load it with: from lerobot.datasets.lerobot_dataset import LeRobotDataset; "
+        f"LeRobotDataset('{run.repo_id}', root='{summary.out}')"
+    )
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return args.func(args)
+    except ConfigError as e:
+        print(f"babblegen: error: {e}", file=sys.stderr)
+        return 2
+
+
+def entry_point() -> None:
+    """Console script: run, then leave without the interpreter's teardown, where OMPL's Python binding
+    prints spurious reference-leak warnings (everything babblegen opened is closed by then)."""
+    import logging
+    import os
+
+    code = main()
+    logging.shutdown()
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(code)
+
+
+if __name__ == "__main__":
+    entry_point()

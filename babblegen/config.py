@@ -1,0 +1,118 @@
+"""The run configuration: one dataclass tree, built from defaults < a TOML file < command-line flags,
+validated before anything is written, and stored with every dataset."""
+
+from __future__ import annotations
+
+import dataclasses
+import tomllib
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+from babblegen.explorers.noveb import NovEBConfig
+from babblegen.world.world import WorldSettings
+
+
+class ConfigError(ValueError):
+    """Bad user input: reported as a one-line message and a non-zero exit."""
+
+
+@dataclass
+class RunConfig:
+    task: str = "noveb_tabletop"
+    explorer: str = "noveb"  # "noveb" or "random"
+    seed: int = 0
+    max_attempts: int | None = None  # stop after this many attempted movements (default: all generations)
+    descriptor: str = "phash"
+    checkpoint_every: int = 10  # generations between commit points (crash-safe resume granularity)
+    workers: int = 1
+    ray: str | None = None  # None, "auto" or a cluster address
+    rerun: bool = False  # write Rerun recordings beside the dataset
+    noveb: NovEBConfig = field(default_factory=NovEBConfig)
+    world: WorldSettings = field(default_factory=WorldSettings)
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> RunConfig:
+        data = dict(data)
+        unknown = set(data) - {f.name for f in dataclasses.fields(cls)}
+        if unknown:
+            raise ConfigError(f"unknown config keys: {', '.join(sorted(unknown))}")
+        noveb = _sub(NovEBConfig, data.pop("noveb", {}), "noveb")
+        world = _sub(WorldSettings, data.pop("world", {}), "world")
+        try:
+            return cls(noveb=noveb, world=world, **data)
+        except TypeError as e:
+            raise ConfigError(str(e)) from None
+
+    @property
+    def total_generations(self) -> int:
+        return self.noveb.generations
+
+    def validate(self) -> None:
+        """Raise ConfigError for values that cannot work, with the valid choices where there are some."""
+        from babblegen.descriptors import DESCRIPTORS
+        from babblegen.explorers import EXPLORERS
+        from babblegen.tasks import TASKS
+
+        if self.task not in TASKS:
+            raise ConfigError(f"unknown task {self.task!r}; choose one of: {', '.join(sorted(TASKS))}")
+        if self.explorer not in EXPLORERS:
+            raise ConfigError(f"unknown explorer {self.explorer!r}; choose one of: {', '.join(sorted(EXPLORERS))}")
+        if self.descriptor not in DESCRIPTORS:
+            raise ConfigError(
+                f"unknown descriptor {self.descriptor!r}; choose one of: {', '.join(sorted(DESCRIPTORS))}"
+            )
+        n = self.noveb
+        if n.k >= n.population:
+            raise ConfigError(
+                f"k ({n.k}) must be below the population ({n.population}): the first generation has no archive, "
+                "so each individual has only population - 1 neighbours"
+            )
+        if self.max_attempts is not None and self.max_attempts < 1:
+            raise ConfigError(f"max_attempts must be at least 1, got {self.max_attempts}")
+        if self.seed < 0:
+            raise ConfigError(f"seed must be non-negative, got {self.seed}")
+        if self.checkpoint_every < 1:
+            raise ConfigError(f"checkpoint_every must be at least 1, got {self.checkpoint_every}")
+        if self.workers < 1:
+            raise ConfigError(f"workers must be at least 1, got {self.workers}")
+
+
+def _sub(cls: type, values: dict[str, Any] | Any, section: str) -> Any:
+    if dataclasses.is_dataclass(values):
+        return values
+    if not isinstance(values, dict):
+        raise ConfigError(f"[{section}] must be a table")
+    unknown = set(values) - {f.name for f in dataclasses.fields(cls)}
+    if unknown:
+        raise ConfigError(f"unknown keys in [{section}]: {', '.join(sorted(unknown))}")
+    try:
+        return cls(**values)
+    except (TypeError, ValueError) as e:
+        raise ConfigError(f"[{section}] {e}") from None
+
+
+def load_toml(path: str | Path) -> dict[str, Any]:
+    try:
+        with open(path, "rb") as f:
+            return tomllib.load(f)
+    except FileNotFoundError:
+        raise ConfigError(f"config file not found: {path}") from None
+    except tomllib.TOMLDecodeError as e:
+        raise ConfigError(f"config file {path} is not valid TOML: {e}") from None
+
+
+def merge(base: dict[str, Any], override: dict[str, Any]) -> dict[str, Any]:
+    """Recursive dict merge; values in `override` win, None values in `override` are ignored."""
+    out = dict(base)
+    for k, v in override.items():
+        if v is None:
+            continue
+        if isinstance(v, dict):
+            out[k] = merge(out.get(k) or {}, v)
+        else:
+            out[k] = v
+    return out

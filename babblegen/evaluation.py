@@ -1,0 +1,45 @@
+"""Evaluating a generation's commands: the interface between the run loop and the world(s).
+
+Each rollout is seeded from the run seed and its attempt index, never from worker state, so results do not
+depend on which worker ran what.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+
+import numpy as np
+
+from babblegen.scene import TaskSpec
+from babblegen.world.rollout import Command, Rollout
+from babblegen.world.world import World, WorldSettings
+
+
+def seeded_rollout(world: World, command: Command, run_seed: int, attempt: int) -> Rollout:
+    """One rollout whose randomness (IK restarts, planner) depends only on (run_seed, attempt)."""
+    world.rng = np.random.default_rng([run_seed, attempt])
+    return world.rollout(command)
+
+
+class Evaluator(ABC):
+    """Runs a batch of commands and returns their rollouts in the same order."""
+
+    @abstractmethod
+    def evaluate(self, commands: list[Command], attempts: list[int]) -> list[Rollout]: ...
+
+    def close(self) -> None:  # noqa: B027  (optional hook)
+        pass
+
+
+class LocalEvaluator(Evaluator):
+    """One World in this process."""
+
+    def __init__(self, task: TaskSpec, settings: WorldSettings, run_seed: int, world: World | None = None):
+        self.world = world or World(task, settings, seed=run_seed)
+        self.run_seed = run_seed
+
+    def evaluate(self, commands: list[Command], attempts: list[int]) -> list[Rollout]:
+        return [seeded_rollout(self.world, c, self.run_seed, a) for c, a in zip(commands, attempts, strict=True)]
+
+    def close(self) -> None:
+        self.world.close()

@@ -1,0 +1,65 @@
+"""The sidecar beside LeRobot's meta/: one JSON line per attempted movement, infeasible ones included.
+
+Append-only and flushed per row, so it survives a crash up to the last complete line; the run's commit
+record stores the byte offset it agrees with, and resume truncates to it. Fields are documented in
+README.md ("The sidecar table").
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+SIDECAR_DIR = "babblegen"
+ATTEMPTS = "attempts.jsonl"
+RUN_INFO = "run.json"
+CHECKPOINT = "checkpoint.pkl"
+
+
+def sidecar_dir(root: str | Path) -> Path:
+    return Path(root) / SIDECAR_DIR
+
+
+class AttemptLog:
+    """Append-only JSON-lines table of attempts."""
+
+    def __init__(self, path: Path):
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._f = open(self.path, "ab")  # noqa: SIM115  (kept open for the whole run)
+
+    def append(self, row: dict[str, Any]) -> None:
+        self._f.write(json.dumps(row, separators=(",", ":")).encode() + b"\n")
+        self._f.flush()
+
+    def offset(self) -> int:
+        """Byte length of the complete rows written so far (synced to disk)."""
+        self._f.flush()
+        os.fsync(self._f.fileno())
+        return self._f.tell()
+
+    def close(self) -> None:
+        if not self._f.closed:
+            self._f.close()
+
+    @staticmethod
+    def truncate(path: Path, offset: int) -> None:
+        with open(path, "r+b") as f:
+            f.truncate(offset)
+
+
+def read_attempts(root: str | Path) -> list[dict[str, Any]]:
+    """All complete rows of a dataset's sidecar table (a torn last line is ignored)."""
+    rows = []
+    with open(sidecar_dir(root) / ATTEMPTS, "rb") as f:
+        for line in f:
+            if line.endswith(b"\n"):
+                rows.append(json.loads(line))
+    return rows
+
+
+def read_run_info(root: str | Path) -> dict[str, Any]:
+    with open(sidecar_dir(root) / RUN_INFO) as f:
+        return json.load(f)
