@@ -105,16 +105,13 @@ def check_output(out: Path, resume: bool) -> None:
             f"{out} already exists and is not empty; use --resume to continue a babblegen run there, "
             "or choose another --out"
         )
-    parent = out if out.exists() else _existing_parent(out)
-    if not os.access(parent, os.W_OK | os.X_OK):
-        raise ConfigError(f"cannot write to {parent}: permission denied")
-
-
-def _existing_parent(path: Path) -> Path:
-    p = path.absolute().parent
-    while not p.exists():
-        p = p.parent
-    return p
+    try:  # the only reliable test of writability (root ignores permission bits)
+        out.mkdir(parents=True, exist_ok=True)
+        probe = out / ".babblegen-write-test"
+        probe.touch()
+        probe.unlink()
+    except OSError as e:
+        raise ConfigError(f"cannot write to {out}: {e.strerror or e}") from None
 
 
 def command_for(candidate) -> Command:
@@ -147,16 +144,18 @@ class Run:
         check_output(out, resume=True)
         info = read_run_info(out)
         data = info["config"]
-        allowed = {"max_attempts", "workers", "ray", "rerun"}
+        allowed = {"max_attempts", "generations", "workers", "ray", "rerun", "checkpoint_every"}
         for key, value in (overrides or {}).items():
             if value is None:
                 continue
-            if key == "generations":
-                data["noveb"]["generations"] = value
-            elif key in allowed:
-                data[key] = value
-            elif data.get(key, data["noveb"].get(key)) != value:
-                raise ConfigError(f"--resume cannot change {key!r} of an existing run (stored: {data.get(key)!r})")
+            section = next((sec for sec in (data, data["noveb"], data["world"]) if key in sec), None)
+            if section is None:
+                raise ConfigError(f"unknown setting {key!r}")
+            if section[key] == value:
+                continue
+            if key not in allowed:
+                raise ConfigError(f"--resume cannot change {key!r} of an existing run (stored: {section[key]!r})")
+            section[key] = value
         config = RunConfig.from_dict(data)
         config.validate()
         return cls(out, config, resumed=True)
