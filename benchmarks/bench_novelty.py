@@ -14,9 +14,7 @@ import numpy as np
 from babblegen.novelty import novelty
 
 
-def time_generation(
-    archive_size: int, n_queries: int, n_words: int, k: int, repeats: int, seed: int
-) -> float:
+def time_generation(archive_size: int, n_queries: int, n_words: int, k: int, repeats: int, seed: int) -> float:
     """Best-of-``repeats`` seconds for the novelty of ``n_queries`` codes against pool ∪ archive."""
     rng = np.random.default_rng(seed)
     archive = rng.integers(0, 2**64, size=(archive_size, n_words), dtype=np.uint64)
@@ -40,9 +38,7 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()
 
-    print(
-        f"novelty of {args.queries} queries, {64 * args.words}-bit codes, k={args.k}, best of {args.repeats}"
-    )
+    print(f"novelty of {args.queries} queries, {64 * args.words}-bit codes, k={args.k}, best of {args.repeats}")
     print(f"{'archive':>10} {'s/generation':>14} {'ratio':>8}")
     previous = None
     for size in args.sizes:

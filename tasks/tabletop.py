@@ -106,9 +106,7 @@ class TabletopEnv(BaseEnv):
             builder.add_box_visual(half_size=list(obj.size), material=mat)
         elif obj.shape == "cylinder":
             pose = sapien.Pose(q=_UPRIGHT)
-            builder.add_cylinder_collision(
-                pose=pose, radius=obj.size[0], half_length=obj.size[1], density=density
-            )
+            builder.add_cylinder_collision(pose=pose, radius=obj.size[0], half_length=obj.size[1], density=density)
             builder.add_cylinder_visual(pose=pose, radius=obj.size[0], half_length=obj.size[1], material=mat)
         elif obj.shape == "sphere":
             builder.add_sphere_collision(radius=obj.size[0], density=density)

@@ -129,9 +129,7 @@ def test_novelty_archive_and_selection_by_hand():
     #   C 15: 0->4 3->2 1->3 0->4 7->1 | 4  -> 1 2 3 = 2
     #   C 0:  0->0 3->2 1->1 15->4 7->3 | 0  -> 0 0 1 = 1/3
     #   C 7:  0->3 3->1 1->2 15->1 0->3 | 3  -> 1 1 2 = 4/3
-    evals = ex.tell(
-        gen1, [np.array([15], np.uint64), np.array([0], np.uint64), None, np.array([7], np.uint64)]
-    )
+    evals = ex.tell(gen1, [np.array([15], np.uint64), np.array([0], np.uint64), None, np.array([7], np.uint64)])
     np.testing.assert_allclose([e.novelty for e in evals if e.novelty is not None], [2.0, 1 / 3, 4 / 3])
     assert evals[2].novelty is None
     assert [e.archived for e in evals] == [True, False, False, False]
@@ -250,9 +248,7 @@ def test_random_babbling_within_limits_and_reproducible():
     # uniform: each joint's mean is near the middle of its range (std of the mean ~ range * 0.0091)
     span = PR2_LIMITS[:, 1] - PR2_LIMITS[:, 0]
     assert np.all(np.abs(t.mean(0) - PR2_LIMITS.mean(1)) < 0.04 * span)
-    assert np.all(t.min(0) < PR2_LIMITS[:, 0] + 0.01 * span) and np.all(
-        t.max(0) > PR2_LIMITS[:, 1] - 0.01 * span
-    )
+    assert np.all(t.min(0) < PR2_LIMITS[:, 0] + 0.01 * span) and np.all(t.max(0) > PR2_LIMITS[:, 1] - 0.01 * span)
 
     again = make_explorer("random", {"population": 50}, 3, PR2_LIMITS, START)
     np.testing.assert_array_equal(np.stack([c.genome for c in again.ask()]), t[:50])
