@@ -13,6 +13,7 @@ from dataclasses import asdict, dataclass
 
 import gymnasium as gym
 import numpy as np
+import sapien
 import torch
 
 from babblegen.scene import TaskSpec
@@ -33,7 +34,9 @@ class WorldSettings:
     sim_freq: int = 100  # physics steps per second
     max_joint_speed: float = 1.5  # rad/s on the fastest joint along the path
     dwell_seconds: float = 0.2  # pause at the final waypoint before returning
-    settle_seconds: float = 0.5  # after the return, before the after image
+    settle_seconds: float = 0.5  # at least this long after the return, before the after image ...
+    max_settle_seconds: float = 3.0  # ... and longer, up to this, while an object still moves
+    rest_speed: float = 0.005  # m/s (and 10x that in rad/s): an object slower than this is at rest
     plan_time_limit: float = 1.0  # seconds of RRTConnect per segment
     ik_tolerance: float = 0.005  # metres
     ik_seeds: int = 8
@@ -94,10 +97,16 @@ class World:
         )
         self.planner = JointPlanner(self.collision, time_limit=s.plan_time_limit)
         self.reach = self._max_reach()
-        self.shoulder = self.kin.link_frames(self.home)[1][0, 2]
+        pos = self.kin.link_frames(np.zeros(self.kin.dof))[1][0]
+        self._pan_xy, self._shoulder_z = pos[1, :2], pos[2, 2]
+        self._lift_radius = float(np.linalg.norm(pos[2, :2] - pos[1, :2]))
+        self._bank_q, self._bank_tool = self._seed_bank(400)
 
         self.object_names = task.object_names
         self._object_entities = [self.sim.objects[n]._objs[0] for n in self.object_names]
+        self._object_bodies = [
+            e.find_component_by_type(sapien.physx.PhysxRigidDynamicComponent) for e in self._object_entities
+        ]
         self._arm = self.agent.robot._objs[0]
         self._tool = next(link for link in self._arm.links if link.entity.name == pr2_arm.TOOL_LINK)
         self._arm_entity_names = {link.entity.name for link in self._arm.links} - {pr2_arm.BASE_LINK}
@@ -117,32 +126,47 @@ class World:
         """The home tool position in normalised workspace coordinates (the start of every trajectory)."""
         return self.task.workspace.to_norm(self.kin.tool_position(self.home)[0])
 
+    def shoulder_distance(self, points: np.ndarray) -> np.ndarray:
+        """Distance from points (..., 3) to the nearest place the shoulder-lift joint can be (a circle
+        around the pan axis): beyond `reach`, no configuration gets the tool there."""
+        points = np.asarray(points)
+        horizontal = np.linalg.norm(points[..., :2] - self._pan_xy, axis=-1)
+        return np.hypot(horizontal - self._lift_radius, points[..., 2] - self._shoulder_z)
+
+    def _seed_bank(self, n: int) -> tuple[np.ndarray, np.ndarray]:
+        """Collision-free configurations spread over the joint space (fixed seed) and their tool points:
+        IK starts from the ones whose tool is nearest its target."""
+        rng = np.random.default_rng(12345)
+        q = rng.uniform(self.kin.lower, self.kin.upper, (8 * n, self.kin.dof))
+        q = q[~self.collision.in_collision(q)][:n]
+        return q, self.kin.tool_position(q)
+
     def solve_ik(self, target: np.ndarray, seed_q: np.ndarray) -> tuple[np.ndarray | None, str]:
-        """A collision-free joint configuration reaching `target`, preferring one close to `seed_q`."""
-        if np.linalg.norm(target - self.shoulder) > self.reach:
+        """A collision-free joint configuration reaching `target`, preferring one close to `seed_q`.
+
+        Deterministic: the same target and seed give the same answer (restarts draw from a generator
+        seeded by the target), so a genome always produces the same movement.
+        """
+        target = np.asarray(target, dtype=np.float64)
+        if self.shoulder_distance(target) > self.reach:
             return None, "out_of_reach"
         s = self.settings
-        seeds = np.vstack(
-            [
-                seed_q,
-                self.home,
-                self.rng.uniform(self.kin.lower, self.kin.upper, (s.ik_seeds - 2, self.kin.dof)),
-            ]
-        )
+        rng = np.random.default_rng(np.frombuffer(np.round(target, 9).tobytes(), dtype=np.uint32))
+        near = np.argsort(np.linalg.norm(self._bank_tool - target, axis=1))[: max(s.ik_seeds - 2, 1)]
+        # Stages: from where the arm is (smallest motion), then from stored configurations whose tool is near
+        # the target, then random restarts. IK stops at the first seed that converges, so order matters.
+        stages = [np.vstack([seed_q, self.home]), self._bank_q[near]]
+        stages += [rng.uniform(self.kin.lower, self.kin.upper, (s.ik_seeds, self.kin.dof)) for _ in range(2)]
         found_any = False
-        for _ in range(3):
+        for seeds in stages:
             q, err = self.kin.inverse_position(target, seeds, tol=s.ik_tolerance * 0.5)
             ok = err < s.ik_tolerance
-            if ok.any():
-                found_any = True
-                cand = q[ok]
-                free = ~self.collision.in_collision(cand)
-                if free.any():
-                    cand = cand[free]
-                    return cand[np.argmin(np.abs(cand - seed_q).sum(axis=1))], ""
-                seeds = np.vstack([q[~ok], self.rng.uniform(self.kin.lower, self.kin.upper, (ok.sum(), self.kin.dof))])
-            else:
-                seeds = self.rng.uniform(self.kin.lower, self.kin.upper, (s.ik_seeds, self.kin.dof))
+            if not ok.any():
+                continue
+            found_any = True
+            cand = q[ok][~self.collision.in_collision(q[ok])]
+            if len(cand):
+                return cand[np.argmin(np.abs(cand - seed_q).sum(axis=1))], ""
         return None, "target_in_collision" if found_any else "no_ik"
 
     def plan_command(self, command: Command) -> tuple[np.ndarray | None, str, np.ndarray | None, str, dict]:
@@ -185,6 +209,13 @@ class World:
     # --- simulation ---------------------------------------------------------------------------------------
     def _object_poses(self) -> np.ndarray:
         return np.array([np.concatenate([e.pose.p, e.pose.q]) for e in self._object_entities])
+
+    def _at_rest(self) -> bool:
+        v = self.settings.rest_speed
+        return all(
+            np.linalg.norm(b.linear_velocity) < v and np.linalg.norm(b.angular_velocity) < 10 * v
+            for b in self._object_bodies
+        )
 
     def _render(self) -> np.ndarray:
         self.sim.scene.update_render()
@@ -231,6 +262,7 @@ class World:
         back = self._timed_path(out_path[::-1])
         settle = np.repeat(self.home[None], max(int(round(s.settle_seconds * s.control_freq)), 1), axis=0)
         schedule = np.concatenate([out, dwell, back, settle])
+        extra_settle = max(int(round((s.max_settle_seconds - s.settle_seconds) * s.control_freq)), 0)
 
         self.reset()
         substeps = s.sim_freq // s.control_freq
@@ -254,7 +286,10 @@ class World:
         record(self.home)
         touched_any = np.zeros_like(touched_since)
         t0 = time.perf_counter()
-        for i, target in enumerate(schedule, start=1):
+        i, n = 0, len(schedule)
+        while i < n:
+            target = schedule[i]
+            i += 1
             self.agent.set_action(torch.as_tensor(target, dtype=torch.float32)[None])
             for _ in range(substeps):
                 self.agent.before_simulation_step()
@@ -262,7 +297,11 @@ class World:
                 touching = self._touching()
                 touched_since |= touching
                 touched_any |= touching
-            if i % per_frame == 0 and i < len(schedule):
+            if i == n and extra_settle > 0 and not self._at_rest():
+                # keep settling while something still moves (a rolling can, a falling box)
+                schedule = np.concatenate([schedule, self.home[None]])
+                n, extra_settle = n + 1, extra_settle - 1
+            if i % per_frame == 0 and i < n:
                 t_sim += time.perf_counter() - t0
                 record(target)
                 t0 = time.perf_counter()

@@ -1,0 +1,249 @@
+"""Rollouts in the simulated tabletop: contacts, object motion, head-camera images, frame recording, resets.
+
+One World per module: its first camera render compiles shaders (about 10 s on the CPU renderer).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import sapien
+
+from babblegen.descriptors import PHash
+from babblegen.tasks import get_task
+from babblegen.world.rollout import REASONS, Command, Rollout
+from babblegen.world.world import World
+
+# ManiSkill's action check trips a NumPy 2 deprecation warning on every control step.
+pytestmark = pytest.mark.filterwarnings("ignore:__array_wrap__ must accept context:DeprecationWarning")
+
+CAN = 1  # index of the can in the task's objects
+# Tool from 10 cm in front of the can through its centre and 12 cm beyond, 1 cm above the table top.
+PUSH_THROUGH_CAN = np.array([[0.62, -0.08, 0.77], [0.84, -0.08, 0.77]])
+FREE_AIR = np.array([[0.7, -0.3, 0.98]])
+TABLE_TARGET = np.array([[0.7, -0.2, 0.65]])
+FAR_TARGET = np.array([[1.4, 0.0, 0.8]])
+
+
+@pytest.fixture(scope="module")
+def world():
+    w = World(get_task("noveb_tabletop"), seed=0)
+    yield w
+    w.close()
+
+
+def waypoints(w: World, points: np.ndarray) -> Command:
+    return Command("ee_waypoints", w.task.workspace.to_norm(points))
+
+
+@pytest.fixture(scope="module")
+def push(world) -> Rollout:
+    r = world.rollout(waypoints(world, PUSH_THROUGH_CAN))
+    assert r.feasible, r.reason
+    return r
+
+
+def project(w: World, points: np.ndarray) -> np.ndarray:
+    """Pixel coordinates (column, row) of world points in the head camera image."""
+    params = w._camera.get_params()
+    k, ext = params["intrinsic_cv"][0].numpy(), params["extrinsic_cv"][0].numpy()
+    cam = np.atleast_2d(points) @ ext[:3, :3].T + ext[:3, 3]
+    uv = cam @ k.T
+    return uv[:, :2] / uv[:, 2:]
+
+
+def changed_mask(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    return np.abs(a.astype(np.int16) - b.astype(np.int16)).max(axis=-1) > 0
+
+
+def bbox(mask: np.ndarray) -> tuple[int, int, int, int]:
+    rows, cols = np.nonzero(mask)
+    return cols.min(), rows.min(), cols.max(), rows.max()
+
+
+# --- contacts and object motion ------------------------------------------------------------------------
+def test_push_through_can_touches_and_moves_it(world, push):
+    w, r = world, push
+    assert r.touched.dtype == bool and r.touched.shape == (len(w.object_names),)
+    assert r.touched[CAN], r.touched
+    assert r.frames.contacts[:, CAN].max() == 1.0
+    np.testing.assert_array_equal(r.touched, r.frames.contacts.max(axis=0) > 0)
+    assert r.frames.contacts[0].sum() == 0  # nothing touched before the movement
+    assert r.displacement[CAN] > 0.005, r.displacement
+    others = np.arange(len(w.object_names)) != CAN
+    assert (r.displacement[others] < 1e-3).all(), r.displacement
+    np.testing.assert_allclose(
+        r.displacement, np.linalg.norm(r.final_poses[:, :3] - w.start_poses[:, :3], axis=1), atol=1e-9
+    )
+
+
+def test_push_through_can_changes_image_around_the_can(world, push):
+    w, r = world, push
+    before, after = r.before_image, r.after_image
+    assert np.abs(before.astype(float) - after.astype(float)).mean() > 0.2
+    phash = PHash()
+    changed_hash = not np.array_equal(phash(before), phash(after))
+    mask = changed_mask(before, after)
+    col, row = project(w, w.start_poses[CAN, :3])[0].round().astype(int)
+    window = mask[max(row - 6, 0) : row + 7, max(col - 6, 0) : col + 7]
+    assert window.mean() > 0.2, "the pixels where the can stood did not change"
+    # nothing changed around the objects that were not touched
+    for i in np.flatnonzero(~r.touched):
+        c, rw = project(w, w.start_poses[i, :3])[0].round().astype(int)
+        assert not mask[max(rw - 4, 0) : rw + 5, max(c - 4, 0) : c + 5].any(), w.object_names[i]
+    assert changed_hash or window.mean() > 0.5
+
+
+def test_free_air_touches_nothing(world):
+    w = world
+    r = w.rollout(waypoints(w, FREE_AIR))
+    assert r.feasible, r.reason
+    assert not r.touched.any()
+    assert (r.frames.contacts == 0).all()
+    assert (r.displacement < 1e-4).all(), r.displacement  # resting objects settle by ~1e-6 m
+    np.testing.assert_array_equal(r.after_image, r.before_image)
+    # the tool really went there (within the IK tolerance plus the controller's tracking error)
+    err = np.linalg.norm(r.frames.ee_pos - FREE_AIR[0], axis=1).min()
+    assert err < 0.02, err
+
+
+# --- head camera -------------------------------------------------------------------------------------------
+def test_head_image_is_a_real_render(world):
+    w = world
+    h, width = w.settings.camera_height, w.settings.camera_width
+    w.reset()
+    scene = w._render()
+    assert scene.shape == (h, width, 3) and scene.dtype == np.uint8
+    assert scene.std() > 20, scene.std()
+    assert len(np.unique(scene.reshape(-1, 3), axis=0)) > 20
+    np.testing.assert_array_equal(w._render(), scene)  # rendering the same scene twice is stable
+    can_pixel = project(w, w.start_poses[CAN, :3])[0]
+    assert (can_pixel >= 0).all() and (can_pixel < [width, h]).all()
+    try:
+        w._object_entities[CAN].pose = sapien.Pose(p=[3.0, 3.0, 0.1])
+        without_can = w._render()
+    finally:
+        w.reset()
+    mask = changed_mask(scene, without_can)
+    assert mask.sum() > 30, "removing the can changed (almost) nothing"
+    c0, r0, c1, r1 = bbox(mask)
+    assert (c1 - c0 + 1) * (r1 - r0 + 1) < 0.05 * h * width, (c0, r0, c1, r1)
+    assert c0 - 1 <= can_pixel[0] <= c1 + 1 and r0 - 1 <= can_pixel[1] <= r1 + 1, (can_pixel, (c0, r0, c1, r1))
+    np.testing.assert_array_equal(w._render(), scene)  # reset put the can back
+
+
+def test_before_image_is_the_reset_scene(world):
+    w = world
+    w.reset()
+    scene = w._render()
+    r = w.rollout(waypoints(w, FREE_AIR))
+    np.testing.assert_array_equal(r.before_image, scene)
+
+
+# --- frame recording ---------------------------------------------------------------------------------------
+def test_frames_are_recorded_consistently(world, push):
+    w, r, s = world, push, world.settings
+    f = r.frames
+    n_obj, dof = len(w.object_names), w.kin.dof
+    t = len(f)
+    assert t >= 3
+    # the schedule: out along the path, dwell, back, settle, one frame every control_freq / fps steps
+    m = (len(r.joint_path) + 1) // 2
+    out, back = r.joint_path[:m], r.joint_path[m - 1 :]
+    np.testing.assert_allclose(back, out[::-1])
+    steps = (
+        len(w._timed_path(out))
+        + round(s.dwell_seconds * s.control_freq)
+        + len(w._timed_path(back))
+        + max(round(s.settle_seconds * s.control_freq), 1)
+    )
+    # settling goes on (up to max_settle_seconds) while an object still moves
+    extra = round((s.max_settle_seconds - s.settle_seconds) * s.control_freq)
+    per_frame = s.control_freq // s.fps
+    assert 2 + (steps - 1) // per_frame <= t <= 2 + (steps + extra - 1) // per_frame
+    assert f.state.shape == (t, dof) and f.action.shape == (t, dof) and f.ee_pos.shape == (t, 3)
+    assert f.object_poses.shape == (t, n_obj, 7) and f.contacts.shape == (t, n_obj)
+    assert f.images.shape == (t, s.camera_height, s.camera_width, 3) and f.images.dtype == np.uint8
+    assert set(np.unique(f.contacts)) <= {0.0, 1.0}
+    np.testing.assert_allclose(f.state[0], w.home, atol=1e-4)
+    np.testing.assert_allclose(f.state[-1], w.home, atol=1e-4)
+    np.testing.assert_allclose(f.state[-2], w.home, atol=1e-2)  # settled before the final snap home
+    np.testing.assert_allclose(f.action[0], w.home, atol=1e-6)
+    np.testing.assert_allclose(f.action[-1], w.home, atol=1e-6)
+    assert (f.action >= w.kin.lower - 1e-5).all() and (f.action <= w.kin.upper + 1e-5).all()
+    # the recorded tool position is the model's FK of the recorded joint state
+    np.testing.assert_allclose(f.ee_pos, w.kin.tool_position(f.state.astype(np.float64)), atol=2e-3)
+    np.testing.assert_allclose(f.object_poses[0], w.start_poses, atol=1e-6)
+    np.testing.assert_allclose(f.object_poses[-1], r.final_poses, atol=1e-6)
+    # the arm went where it was sent: near the last waypoint in some frame
+    assert np.linalg.norm(f.ee_pos - PUSH_THROUGH_CAN[-1], axis=1).min() < 0.03
+    assert r.planner in ("direct", "rrtconnect")
+    assert {"ik", "plan", "sim", "render", "total"} <= r.timings.keys()
+
+
+def test_reset_restores_start_poses(world):
+    w = world
+    r = w.rollout(waypoints(w, PUSH_THROUGH_CAN))
+    assert r.feasible and r.displacement[CAN] > 0.005
+    np.testing.assert_allclose(w._object_poses()[CAN], r.final_poses[CAN], atol=1e-6)
+    w.reset()
+    np.testing.assert_allclose(w._object_poses(), w.start_poses, atol=1e-6)
+    np.testing.assert_allclose(w._arm.qpos, w.home, atol=1e-6)
+    rest = np.array(w.task.rest_pose(w.task.objects[CAN]))
+    np.testing.assert_allclose(w.start_poses[CAN], rest, atol=1e-6)
+
+
+# --- joint-space babbling and infeasible commands -----------------------------------------------------------
+def test_joint_target_executes_and_returns_home(world):
+    w = world
+    rng = np.random.default_rng(3)
+    for _ in range(50):
+        goal = rng.uniform(w.kin.lower, w.kin.upper)
+        if not w.collision.in_collision(goal[None])[0]:
+            break
+    else:
+        pytest.fail("no collision-free joint target in 50 draws")
+    r = w.rollout(Command("joint_target", goal))
+    assert r.feasible, r.reason
+    assert r.ee_targets is None and r.planner in ("direct", "rrtconnect")
+    np.testing.assert_allclose(r.joint_path[0], w.home)
+    np.testing.assert_allclose(r.joint_path[-1], w.home)
+    assert np.abs(r.joint_path - goal).max(axis=1).min() < 1e-9
+    f = r.frames
+    assert np.abs(f.state - goal).max(axis=1).min() < 0.05  # tracked to the target during the dwell
+    np.testing.assert_allclose(f.state[-1], w.home, atol=1e-4)
+    np.testing.assert_allclose(f.state[-2], w.home, atol=1e-2)
+    assert (f.action >= w.kin.lower - 1e-5).all() and (f.action <= w.kin.upper + 1e-5).all()
+
+
+def test_joint_target_rollout_is_repeatable(world):
+    w = world
+    goal = w.home + np.array([0.6, 0.5, 0.4, 0.5, 0.3, 0.3, 0.2])
+    a = w.rollout(Command("joint_target", goal))
+    b = w.rollout(Command("joint_target", goal))
+    assert a.feasible and b.feasible
+    np.testing.assert_array_equal(a.frames.state, b.frames.state)
+    np.testing.assert_array_equal(a.frames.images, b.frames.images)
+
+
+@pytest.mark.parametrize(
+    ("kind", "values", "reason"),
+    [
+        ("ee_waypoints", TABLE_TARGET, "target_in_collision"),
+        ("ee_waypoints", FAR_TARGET, "out_of_reach"),
+        ("joint_target", None, "target_in_collision"),
+    ],
+)
+def test_infeasible_rollouts_have_no_frames(world, kind, values, reason):
+    w = world
+    if kind == "ee_waypoints":
+        command = waypoints(w, values)
+    else:  # the tool 10 cm inside the table
+        seeds = np.vstack([w.home, np.random.default_rng(4).uniform(w.kin.lower, w.kin.upper, (15, 7))])
+        q, err = w.kin.inverse_position(TABLE_TARGET[0] - [0, 0, 0.05], seeds, tol=1e-3)
+        command = Command("joint_target", q[np.argmin(err)])
+    r = w.rollout(command)
+    assert not r.feasible and r.reason == reason and r.reason in REASONS
+    assert r.frames is None and r.before_image is None and r.after_image is None
+    assert r.touched is None and r.displacement is None and r.final_poses is None
+    assert "total" in r.timings
