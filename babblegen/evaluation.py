@@ -21,8 +21,32 @@ def seeded_rollout(world: World, command: Command, run_seed: int, attempt: int) 
     return world.rollout(command)
 
 
+def arm_info(task: TaskSpec) -> dict:
+    """What the explorers need to know about the arm, from its URDF alone (no simulator): joint names and
+    limits, and the home tool position in normalised workspace coordinates."""
+    from babblegen.tasks import pr2_arm
+    from babblegen.world.kinematics import ArmKinematics, UrdfModel
+
+    kin = ArmKinematics(UrdfModel.load(pr2_arm.URDF_PATH), pr2_arm.BASE_LINK, pr2_arm.TOOL_LINK)
+    home_tool = kin.tool_position(pr2_arm.HOME_QPOS)[0]
+    return {"joints": kin.joint_names, "limits": kin.limits, "start_norm": task.workspace.to_norm(home_tool)}
+
+
 class Evaluator(ABC):
-    """Runs a batch of commands and returns their rollouts in the same order."""
+    """Runs batches of commands and returns their rollouts in the same order.
+
+    `submit` then `collect` lets the caller work (write episodes) while a batch runs; `evaluate` does both.
+    """
+
+    failures: int = 0  # workers replaced after dying or timing out
+
+    def submit(self, commands: list[Command], attempts: list[int]) -> None:
+        self._batch = (commands, attempts)
+
+    def collect(self) -> list[Rollout]:
+        commands, attempts = self._batch
+        self._batch = None
+        return self.evaluate(commands, attempts)
 
     @abstractmethod
     def evaluate(self, commands: list[Command], attempts: list[int]) -> list[Rollout]: ...
@@ -32,7 +56,7 @@ class Evaluator(ABC):
 
 
 class LocalEvaluator(Evaluator):
-    """One World in this process."""
+    """One World in this process (rollouts run inside `collect`)."""
 
     def __init__(self, task: TaskSpec, settings: WorldSettings, run_seed: int, world: World | None = None):
         self.world = world or World(task, settings, seed=run_seed)

@@ -163,23 +163,19 @@ class Run:
     # --- the loop -----------------------------------------------------------------------------------------
     def _setup(self):
         from babblegen.descriptors import make_descriptor
-        from babblegen.evaluation import LocalEvaluator
+        from babblegen.evaluation import LocalEvaluator, arm_info
         from babblegen.explorers import make_explorer
         from babblegen.tasks import get_task
 
         cfg = self.config
         self.task = get_task(cfg.task)
-        self.evaluator = self._make_evaluator() if (cfg.workers > 1 or cfg.ray) else None
-        if self.evaluator is None:
+        if cfg.workers > 1 or cfg.ray:
+            from babblegen.parallel import make_parallel_evaluator
+
+            self.evaluator = make_parallel_evaluator(self.task, cfg)
+        else:
             self.evaluator = LocalEvaluator(self.task, cfg.world, cfg.seed)
-        kin_info = self.evaluator.kinematics_info() if hasattr(self.evaluator, "kinematics_info") else None
-        if kin_info is None:
-            world = self.evaluator.world
-            kin_info = {
-                "limits": world.kin.limits,
-                "start_norm": world.start_norm,
-                "joints": world.kin.joint_names,
-            }
+        kin_info = arm_info(self.task)
         self.joint_names = list(kin_info["joints"])
         self.descriptor = make_descriptor(cfg.descriptor)
         explorer_cfg = {f: getattr(cfg.noveb, f) for f in ("population", "generations", "k")}
@@ -204,11 +200,6 @@ class Run:
         )
         self.task_text = f"{cfg.explorer} babbling in {cfg.task}"
         self.repo_id = f"babblegen/{self.out.name or 'dataset'}"
-
-    def _make_evaluator(self):
-        from babblegen.parallel import make_parallel_evaluator
-
-        return make_parallel_evaluator(self.task, self.config)
 
     def _open_new(self) -> None:
         cfg = self.config
@@ -338,10 +329,7 @@ class Run:
             signal.signal(s, _raise)
         bar = _progress(progress, self.total_generations * self.config.noveb.population, self.counters["attempts"])
         try:
-            while not self.explorer.done:
-                self._generation(bar)
-                if self.counters["generations"] % self.config.checkpoint_every == 0:
-                    self._commit()
+            self._loop(bar)
             self._commit(reopen=False)
         except (Interrupted, KeyboardInterrupt):
             interrupted = True
@@ -369,19 +357,39 @@ class Run:
             interrupted,
         )
 
-    def _generation(self, bar) -> None:
+    def _submit(self):
         cands = self.explorer.ask()
-        t = time.perf_counter()
-        rollouts = self.evaluator.evaluate([command_for(c) for c in cands], [c.index for c in cands])
-        t_eval = time.perf_counter() - t
-        codes, t_desc = [], []
-        for r in rollouts:
+        self.evaluator.submit([command_for(c) for c in cands], [c.index for c in cands])
+        return cands
+
+    def _loop(self, bar) -> None:
+        """Generations, pipelined: the next generation is submitted before this one's episodes are written,
+        so workers simulate while the (single) writer writes."""
+        if self.explorer.done:
+            return
+        cands = self._submit()
+        while True:
             t = time.perf_counter()
-            codes.append(self.descriptor(r.after_image) if r.feasible else None)
-            t_desc.append(time.perf_counter() - t)
-        evaluations = self.explorer.tell(cands, codes)
+            rollouts = self.evaluator.collect()
+            t_wait = time.perf_counter() - t
+            codes, t_desc = [], []
+            for r in rollouts:
+                t = time.perf_counter()
+                codes.append(self.descriptor(r.after_image) if r.feasible else None)
+                t_desc.append(time.perf_counter() - t)
+            evaluations = self.explorer.tell(cands, codes)
+            next_cands = None if self.explorer.done else self._submit()
+            self._write_generation(cands, rollouts, codes, evaluations, t_desc, t_wait, bar)
+            if self.counters["generations"] % self.config.checkpoint_every == 0:
+                self._commit()
+            if next_cands is None:
+                return
+            cands = next_cands
+
+    def _write_generation(self, cands, rollouts, codes, evaluations, t_desc, t_wait, bar) -> None:
         for cand, r, code, ev, td in zip(cands, rollouts, codes, evaluations, t_desc, strict=True):
             episode = None
+            failures = int(r.timings.pop("worker_failures", 0))
             t = time.perf_counter()
             if r.feasible:
                 episode = self.writer.add_episode(r.frames, self.task_text)
@@ -389,7 +397,9 @@ class Run:
                 self.counters["contacts"] += int(r.touched.any())
             t_write = time.perf_counter() - t
             row = self._row(cand, r, code, ev, episode, {"descriptor": td, "write": t_write})
-            row["timings"]["evaluate_batch"] = round(t_eval, 5)
+            row["timings"]["wait_for_batch"] = round(t_wait, 5)
+            row["worker_failures"] = failures
+            self.counters["worker_failures"] += failures
             self.log.append(row)
             for sink in self.sinks:
                 sink.log(row, r)
