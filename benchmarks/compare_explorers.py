@@ -58,8 +58,8 @@ def run_one(explorer_name: str, seed: int, attempts: int, out: str) -> dict:
     return summarise(path, names) | {"explorer": explorer_name, "seed": seed, "seconds": time.perf_counter() - t0}
 
 
-def summarise(path: Path, names: list[str]) -> dict:
-    rows = [json.loads(line) for line in path.read_text().splitlines()]
+def summarise(path: Path, names: list[str], limit: int | None = None) -> dict:
+    rows = [json.loads(line) for line in path.read_text().splitlines()][:limit]
     ex = [r for r in rows if r["feasible"]]
     contacts = sum(any(r["touched"].values()) for r in ex)
     per_object = {n: sum(r["touched"][n] for r in ex) for n in names}
@@ -80,11 +80,29 @@ def main() -> None:
     p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     p.add_argument("--jobs", type=int, default=2)
     p.add_argument("--out", default="runs/compare")
+    p.add_argument(
+        "--summarise",
+        type=int,
+        metavar="N",
+        default=None,
+        help="do not run: summarise the first N attempts of every run already in --out (runs still in progress too)",
+    )
     args = p.parse_args()
     Path(args.out).mkdir(parents=True, exist_ok=True)
     jobs = [(e, s) for s in args.seeds for e in ("noveb", "random")]
-    with ProcessPoolExecutor(args.jobs) as pool:
-        results = list(pool.map(run_one, *zip(*jobs, strict=True), [args.attempts] * len(jobs), [args.out] * len(jobs)))
+    if args.summarise:
+        from babblegen.tasks import get_task
+
+        names = get_task("noveb_tabletop").object_names
+        results = [
+            summarise(Path(args.out) / f"{e}-{s}.jsonl", names, args.summarise) | {"explorer": e, "seed": s}
+            for e, s in jobs
+        ]
+    else:
+        with ProcessPoolExecutor(args.jobs) as pool:
+            results = list(
+                pool.map(run_one, *zip(*jobs, strict=True), [args.attempts] * len(jobs), [args.out] * len(jobs))
+            )
     (Path(args.out) / "summary.json").write_text(json.dumps(results, indent=2))
     print(f"{'explorer':>8} {'seed':>4} {'attempts':>8} {'executed':>8} {'contacts':>8} {'per att.':>8}  per object")
     for r in results:
