@@ -3,10 +3,16 @@
 Each edge OMPL considers is checked in one batched call (a Python MotionValidator), not state by state.
 A straight joint-space motion that is already free is returned without calling the planner: it is the
 shortest path RRTConnect plus simplification would converge to, at a fraction of the cost.
+
+Planning is deterministic and independent of machine load and of what was planned before: each query seeds
+OMPL from the motion itself, uses a fresh planner, and stops after a number of iterations (a wall-clock limit
+stays only as a safety net); the path is then shortened greedily, without randomness.
 """
 
 from __future__ import annotations
 
+import time
+import zlib
 from dataclasses import dataclass
 
 import numpy as np
@@ -16,7 +22,8 @@ from ompl import util as ou
 
 from babblegen.world.collision import SphereCollisionModel
 
-ou.setLogLevel(ou.LogLevel.LOG_WARN)
+# OMPL reports re-seeding after first use as an error; here it is deliberate (see plan()).
+ou.setLogLevel(ou.LogLevel.LOG_NONE)
 
 
 @dataclass
@@ -40,8 +47,15 @@ class _BatchMotionValidator(ob.MotionValidator):
 class JointPlanner:
     """Plans between joint configurations; obstacles are whatever the collision model holds."""
 
-    def __init__(self, model: SphereCollisionModel, time_limit: float = 1.0, resolution: float = 0.03):
+    def __init__(
+        self,
+        model: SphereCollisionModel,
+        max_iterations: int = 20_000,
+        time_limit: float = 30.0,
+        resolution: float = 0.03,
+    ):
         self.model = model
+        self.max_iterations = max_iterations
         self.time_limit = time_limit
         self.resolution = resolution
         kin = model.kin
@@ -57,7 +71,7 @@ class JointPlanner:
         si = self.setup.getSpaceInformation()
         self._validator = _BatchMotionValidator(si, model, self.dof, resolution)
         si.setMotionValidator(self._validator)
-        self.setup.setPlanner(og.RRTConnect(si))
+        self.si = si
 
     def _state_valid(self, state) -> bool:
         q = np.fromiter((state[i] for i in range(self.dof)), float, self.dof)
@@ -69,19 +83,38 @@ class JointPlanner:
             s[i] = float(v)
         return s
 
-    def plan(self, start: np.ndarray, goal: np.ndarray, time_limit: float | None = None) -> PlanResult:
+    def plan(self, start: np.ndarray, goal: np.ndarray) -> PlanResult:
         """A collision-free path from start to goal (both assumed valid), or path=None."""
-        import time
-
         t0 = time.perf_counter()
         if self.model.motion_free(start, goal, self.resolution):
             return PlanResult(np.stack([start, goal]), "direct", time.perf_counter() - t0)
+        seed = zlib.crc32(np.round(np.concatenate([start, goal]), 9).tobytes()) | 1
+        ou.RNG.setSeed(seed)
         self.setup.clear()
+        self.setup.setPlanner(og.RRTConnect(self.si))
         self.setup.setStartAndGoalStates(self._state(start), self._state(goal))
-        solved = self.setup.solve(self.time_limit if time_limit is None else time_limit)
-        if not solved or not self.setup.haveExactSolutionPath():
+        iterations = [0]
+        deadline = t0 + self.time_limit
+
+        def stop() -> bool:
+            iterations[0] += 1
+            return iterations[0] > self.max_iterations or time.perf_counter() > deadline
+
+        self.setup.solve(ob.PlannerTerminationCondition(stop))
+        if not self.setup.haveExactSolutionPath():
             return PlanResult(None, "none", time.perf_counter() - t0)
-        self.setup.simplifySolution()
         p = self.setup.getSolutionPath()
         path = np.array([[p.getState(i)[j] for j in range(self.dof)] for i in range(p.getStateCount())])
-        return PlanResult(path, "rrtconnect", time.perf_counter() - t0)
+        return PlanResult(self.shortcut(path), "rrtconnect", time.perf_counter() - t0)
+
+    def shortcut(self, path: np.ndarray) -> np.ndarray:
+        """Greedy, deterministic shortening: from each kept waypoint, jump to the farthest one reachable by a
+        free straight motion."""
+        out, i = [path[0]], 0
+        while i < len(path) - 1:
+            j = len(path) - 1
+            while j > i + 1 and not self.model.motion_free(path[i], path[j], self.resolution):
+                j -= 1
+            out.append(path[j])
+            i = j
+        return np.array(out)

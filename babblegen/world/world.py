@@ -37,7 +37,8 @@ class WorldSettings:
     settle_seconds: float = 0.5  # at least this long after the return, before the after image ...
     max_settle_seconds: float = 3.0  # ... and longer, up to this, while an object still moves
     rest_speed: float = 0.005  # m/s (and 10x that in rad/s): an object slower than this is at rest
-    plan_time_limit: float = 1.0  # seconds of RRTConnect per segment
+    plan_iterations: int = 20_000  # RRTConnect iterations per segment (deterministic, load-independent)
+    plan_time_limit: float = 30.0  # seconds per segment: a safety net only
     ik_tolerance: float = 0.005  # metres
     ik_seeds: int = 8
     collision_margin: float = 0.01  # metres kept from table, floor and robot body
@@ -95,7 +96,7 @@ class World:
             body_exempt_links=("r_shoulder_pan_link", "r_shoulder_lift_link"),
             self_exempt_pairs=(("r_shoulder_pan_link", "r_upper_arm_roll_link"),),
         )
-        self.planner = JointPlanner(self.collision, time_limit=s.plan_time_limit)
+        self.planner = JointPlanner(self.collision, max_iterations=s.plan_iterations, time_limit=s.plan_time_limit)
         self.reach = self._max_reach()
         pos = self.kin.link_frames(np.zeros(self.kin.dof))[1][0]
         self._pan_xy, self._shoulder_z = pos[1, :2], pos[2, 2]
