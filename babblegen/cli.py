@@ -110,7 +110,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--rerun",
         action=argparse.BooleanOptionalAction,
         default=None,
-        help="write Rerun recordings [default: off]",
+        help="write Rerun recordings to DIR/babblegen/rerun/ [default: on]",
     )
     g.add_argument("--no-progress", action="store_true", help="no progress bar")
     g.set_defaults(func=cmd_generate)

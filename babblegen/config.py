@@ -27,7 +27,7 @@ class RunConfig:
     checkpoint_every: int = 10  # generations between commit points (crash-safe resume granularity)
     workers: int = 1
     ray: str | None = None  # None, "auto" or a cluster address
-    rerun: bool = False  # write Rerun recordings beside the dataset
+    rerun: bool = True  # write Rerun recordings beside the dataset (DIR/babblegen/rerun/)
     noveb: NovEBConfig = field(default_factory=NovEBConfig)
     world: WorldSettings = field(default_factory=WorldSettings)
 

@@ -1,0 +1,367 @@
+"""The NovEB paper's figures and a summary table for one run, optionally against a comparison run.
+
+Every number comes from the sidecar table (DIR/babblegen/attempts.jsonl) and the task in run.json:
+    fig2_final_tool_positions.png     final tool positions seen from above (Fig. 2)
+    fig3_final_object_positions.png   final object positions seen from above, coloured by object (Fig. 3)
+    fig4_accumulated_contacts.png     accumulated contacts vs attempted movements, both runs (Fig. 4)
+    fig5_contacts_per_object.png      accumulated contacts per object vs executed movements (Fig. 5)
+    summary.md, summary.json          the numbers
+
+A contact is an executed movement in which the arm touched at least one object (the paper's count); per
+object, an executed movement in which the arm touched that object.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections import Counter
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .sidecar import read_attempts, read_run_info
+
+CELL = 0.02  # metres: the grid of the spread measure
+FIGURES = {
+    "fig2": "fig2_final_tool_positions.png",
+    "fig3": "fig3_final_object_positions.png",
+    "fig4": "fig4_accumulated_contacts.png",
+    "fig5": "fig5_contacts_per_object.png",
+}
+TOOL_GREEN = "#22aa33"
+TABLE_BROWN = "#8c6647"
+
+
+class Run:
+    """A dataset's sidecar table and task, as the report reads them."""
+
+    def __init__(self, root: str | Path):
+        self.root = Path(root)
+        self.info = read_run_info(self.root)
+        self.rows = read_attempts(self.root)
+        self.task = self.info["task"]
+        self.object_names: list[str] = [o["name"] for o in self.task["objects"]]
+        self.colors = {o["name"]: tuple(o["color"][:3]) for o in self.task["objects"]}
+        self.executed = [r for r in self.rows if r.get("feasible")]
+
+    @property
+    def explorer(self) -> str:
+        return str(self.info.get("config", {}).get("explorer") or (self.rows[0]["explorer"] if self.rows else "?"))
+
+    @property
+    def label(self) -> str:
+        name = {"noveb": "NovEB", "random": "random babbling"}.get(self.explorer, self.explorer)
+        return f"{name} ({self.root.name})"
+
+    def touched(self, row: dict[str, Any], name: str | None = None) -> bool:
+        t = row.get("touched") or {}
+        return bool(t.get(name)) if name is not None else any(bool(v) for v in t.values())
+
+
+# --- numbers -------------------------------------------------------------------------------------------------
+def _spread(points: list[list[float]]) -> dict[str, Any]:
+    if not points:
+        return {"cells": 0, "std_x": None, "std_y": None}
+    xy = np.asarray(points, dtype=np.float64)[:, :2]
+    cells = {(math.floor(x / CELL), math.floor(y / CELL)) for x, y in xy}
+    return {"cells": len(cells), "std_x": float(xy[:, 0].std()), "std_y": float(xy[:, 1].std())}
+
+
+BATCH_KEYS = ("wait_for_batch", "evaluate_batch")  # per-generation timings, repeated on each of its rows
+
+
+def _wall_time(rows: list[dict[str, Any]]) -> float:
+    """Seconds of the generation loop, estimated from the timings: per generation, the time spent waiting for
+    its batch of rollouts (counted once), plus describing and writing each attempt. Rows without a batch
+    timing count their own rollout time."""
+    total, seen = 0.0, set()
+    for r in rows:
+        t = r.get("timings") or {}
+        key = next((k for k in BATCH_KEYS if k in t), None)
+        if key is None:
+            total += float(t.get("total", 0.0))
+        elif r.get("generation") not in seen:
+            seen.add(r.get("generation"))
+            total += float(t[key])
+        total += float(t.get("descriptor", 0.0)) + float(t.get("write", 0.0))
+    return total
+
+
+def summarize(run: Run) -> dict[str, Any]:
+    """The summary numbers of one run."""
+    rows, executed = run.rows, run.executed
+    n, e = len(rows), len(executed)
+    contacts = sum(run.touched(r) for r in executed)
+    per_object = {name: sum(run.touched(r, name) for r in executed) for name in run.object_names}
+    moved = {
+        name: sum(float((r.get("displacement") or {}).get(name, 0.0)) > CELL / 2 for r in executed)
+        for name in run.object_names
+    }
+    spread = {
+        name: _spread([r["final_poses"][name] for r in executed if name in (r.get("final_poses") or {})])
+        for name in run.object_names
+    }
+    tool = _spread([r["final_ee_pos"] for r in executed if r.get("final_ee_pos")])
+    reasons = Counter(r.get("reason") or "unknown" for r in rows if not r.get("feasible"))
+    return {
+        "dataset": str(run.root),
+        "explorer": run.explorer,
+        "attempts": n,
+        "executed": e,
+        "generations": len({r.get("generation") for r in rows}),
+        "feasible_fraction": e / n if n else None,
+        "contacts": contacts,
+        "contacts_per_object": per_object,
+        "contacts_per_attempt": contacts / n if n else None,
+        "contacts_per_executed": contacts / e if e else None,
+        "moved_per_object": moved,
+        "final_object_spread": spread,
+        "final_tool_spread": tool,
+        "archive": sum(bool(r.get("archived")) for r in rows),
+        "wall_time_s": _wall_time(rows),
+        "rollout_time_s": sum(float((r.get("timings") or {}).get("total", 0.0)) for r in rows),  # all workers
+        "infeasible_reasons": dict(sorted(reasons.items(), key=lambda kv: -kv[1])),
+    }
+
+
+def _ratio(a: float | None, b: float | None) -> float | None:
+    return None if a is None or not b else a / b
+
+
+def compare(this: dict[str, Any], other: dict[str, Any]) -> dict[str, Any]:
+    """How this run's contacts relate to the comparison run's (None where the comparison has none)."""
+    return {
+        "contact_ratio": _ratio(this["contacts"], other["contacts"]),
+        "contact_rate_ratio": _ratio(this["contacts_per_attempt"], other["contacts_per_attempt"]),
+        "contact_ratio_per_object": {
+            k: _ratio(v, other["contacts_per_object"].get(k)) for k, v in this["contacts_per_object"].items()
+        },
+    }
+
+
+# --- figures -------------------------------------------------------------------------------------------------
+def _figure(nrows: int, ncols: int, size: tuple[float, float]):
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=size, layout="constrained")
+    axes = np.atleast_1d(fig.subplots(nrows, ncols, squeeze=False)).ravel()
+    return fig, axes
+
+
+def _top_view_background(ax, run: Run) -> None:
+    """Table (brown), robot (white box), static obstacles (gray) and the objects where they rest; x forward is
+    up, the robot's left (+y) is on the left, as in the paper's views from above."""
+    from matplotlib.patches import Circle, Polygon, Rectangle
+
+    from .rerun_log import Scene
+
+    t = run.task["table"]
+    (cx, cy, _), (hx, hy, _) = t["center"], t["half_extents"]
+    ax.add_patch(
+        Rectangle((cy - hy, cx - hx), 2 * hy, 2 * hx, facecolor=TABLE_BROWN, alpha=0.35, edgecolor=TABLE_BROWN)
+    )
+    try:
+        foot = Scene(run.task).robot_footprint()
+    except (OSError, ValueError):  # the robot's URDF is not installed: draw PR2's base
+        foot = np.array([[-0.53, -0.33], [0.13, -0.33], [0.13, 0.33], [-0.53, 0.33]])
+    (x0, y0), (x1, y1) = foot.min(axis=0), foot.max(axis=0)
+    ax.add_patch(Rectangle((y0, x0), y1 - y0, x1 - x0, facecolor="white", edgecolor="black", lw=1.2, zorder=2))
+    ax.text((y0 + y1) / 2, (x0 + x1) / 2, "robot", ha="center", va="center", fontsize=8, zorder=3)
+    for box in run.task.get("extra_obstacles") or []:
+        foot = Scene.footprint(box)
+        ax.add_patch(Polygon(foot[:, ::-1], closed=True, facecolor="0.85", edgecolor="0.4", lw=1.0, zorder=1.5))
+    for o in run.task["objects"]:
+        (ox, oy), s, color = o["xy"], o["size"], o["color"][:3]
+        if o["shape"] == "box":
+            patch = Rectangle((oy - s[1], ox - s[0]), 2 * s[1], 2 * s[0], facecolor="none", edgecolor=color, lw=1.5)
+        else:
+            patch = Circle((oy, ox), s[0], facecolor="none", edgecolor=color, lw=1.5)
+        ax.add_patch(patch)
+    ax.set_aspect("equal")
+    ax.set_xlabel("y (m, robot's left is left)")
+    ax.set_ylabel("x (m, forward)")
+    ax.invert_xaxis()
+    ax.grid(True, lw=0.3, alpha=0.5)
+
+
+def _set_top_view_limits(axes, runs: list[Run], points: list[np.ndarray]) -> None:
+    """One frame for all panels: the table, the robot and every point."""
+    xs, ys = [], []
+    for run in runs:
+        t = run.task["table"]
+        (cx, cy, _), (hx, hy, _) = t["center"], t["half_extents"]
+        xs += [cx - hx, cx + hx, -0.55]
+        ys += [cy - hy, cy + hy]
+    for p in points:
+        if len(p):
+            xs += [float(np.nanmin(p[:, 0])), float(np.nanmax(p[:, 0]))]
+            ys += [float(np.nanmin(p[:, 1])), float(np.nanmax(p[:, 1]))]
+    pad = 0.08
+    for ax in axes:
+        ax.set_ylim(min(xs) - pad, max(xs) + pad)
+        ax.set_xlim(max(ys) + pad, min(ys) - pad)
+
+
+def figure_final_tool(runs: list[Run], path: Path) -> Path:
+    """Fig. 2: final tool positions from above, one panel per run."""
+    fig, axes = _figure(1, len(runs), (5.2 * len(runs), 5.6))
+    pts = []
+    for ax, run in zip(axes, runs, strict=True):
+        p = np.array([r["final_ee_pos"] for r in run.executed if r.get("final_ee_pos")], dtype=float).reshape(-1, 3)
+        pts.append(p)
+        _top_view_background(ax, run)
+        ax.scatter(p[:, 1], p[:, 0], s=6, c=TOOL_GREEN, zorder=4, label="final tool position")
+        ax.set_title(f"{run.label}: {len(p)} executed movements", fontsize=10)
+        ax.legend(loc="upper right", fontsize=8)
+    _set_top_view_limits(axes, runs, pts)
+    fig.suptitle("Final tool positions, seen from above")
+    fig.savefig(path, dpi=120)
+    return path
+
+
+def figure_final_objects(runs: list[Run], path: Path) -> Path:
+    """Fig. 3: final object positions from above, coloured by object, one panel per run."""
+    fig, axes = _figure(1, len(runs), (5.2 * len(runs), 5.6))
+    pts = []
+    for ax, run in zip(axes, runs, strict=True):
+        _top_view_background(ax, run)
+        for name in run.object_names:
+            p = [r["final_poses"][name] for r in run.executed if name in (r.get("final_poses") or {})]
+            p = np.array(p, dtype=float).reshape(-1, 7)
+            pts.append(p)
+            ax.scatter(
+                p[:, 1], p[:, 0], s=8, color=run.colors[name], edgecolors="0.25", linewidths=0.3, zorder=4, label=name
+            )
+        ax.set_title(f"{run.label}: {len(run.executed)} executed movements", fontsize=10)
+        ax.legend(loc="upper right", fontsize=8, markerscale=2)
+    _set_top_view_limits(axes, runs, pts)
+    fig.suptitle("Final object positions, seen from above")
+    fig.savefig(path, dpi=120)
+    return path
+
+
+def figure_accumulated_contacts(runs: list[Run], path: Path) -> Path:
+    """Fig. 4: accumulated contacts vs attempted movements, every run on one axis."""
+    fig, axes = _figure(1, 1, (7.0, 4.5))
+    ax = axes[0]
+    peak = 0
+    for run, color in zip(runs, ("tab:blue", "tab:orange", "tab:green"), strict=False):
+        hits = np.cumsum([int(bool(r.get("feasible")) and run.touched(r)) for r in run.rows])
+        ax.plot(np.arange(1, len(hits) + 1), hits, color=color, label=run.label)
+        peak = max([peak, *hits[-1:]])
+    ax.set_ylim(0, max(peak, 1) * 1.05)
+    ax.set_xlabel("attempted movements")
+    ax.set_ylabel("accumulated contacts")
+    ax.set_title("Accumulated contacts (executed movements touching any object)")
+    ax.grid(True, lw=0.3, alpha=0.5)
+    ax.legend()
+    fig.savefig(path, dpi=120)
+    return path
+
+
+def figure_contacts_per_object(runs: list[Run], path: Path) -> Path:
+    """Fig. 5: accumulated contacts per object vs executed movements; this run on top, the comparison below."""
+    fig, axes = _figure(len(runs), 1, (7.0, 3.6 * len(runs)))
+    for ax, run in zip(axes, runs, strict=True):
+        x = np.arange(1, len(run.executed) + 1)
+        peak = 0
+        for name in run.object_names:
+            hits = np.cumsum([int(run.touched(r, name)) for r in run.executed])
+            ax.plot(x, hits, color=run.colors[name], label=name)
+            peak = max([peak, *hits[-1:]])
+        ax.set_ylim(0, max(peak, 1) * 1.05)
+        ax.set_xlabel("executed movements")
+        ax.set_ylabel("accumulated contacts")
+        ax.set_title(run.label, fontsize=10)
+        ax.grid(True, lw=0.3, alpha=0.5)
+        ax.legend(fontsize=8)
+    fig.suptitle("Accumulated contacts per object")
+    fig.savefig(path, dpi=120)
+    return path
+
+
+# --- tables --------------------------------------------------------------------------------------------------
+def _fmt(v: Any, digits: int = 3) -> str:
+    if v is None:
+        return "n/a"
+    if isinstance(v, float):
+        return f"{v:.{digits}f}"
+    return str(v)
+
+
+def markdown(summaries: list[dict[str, Any]], labels: list[str], comparison: dict[str, Any] | None) -> str:
+    """The summary as a Markdown document."""
+    head = "| | " + " | ".join(labels) + " |\n|---|" + "---|" * len(labels) + "\n"
+
+    def row(name: str, values: list[Any]) -> str:
+        return f"| {name} | " + " | ".join(_fmt(v) for v in values) + " |\n"
+
+    objects = list(summaries[0]["contacts_per_object"])
+    body = ""
+    body += row("explorer", [s["explorer"] for s in summaries])
+    body += row("attempted movements", [s["attempts"] for s in summaries])
+    body += row("executed movements (episodes)", [s["executed"] for s in summaries])
+    body += row("feasible fraction", [s["feasible_fraction"] for s in summaries])
+    body += row("contacts (executed movements touching any object)", [s["contacts"] for s in summaries])
+    body += row("contacts per attempt", [s["contacts_per_attempt"] for s in summaries])
+    for name in objects:
+        body += row(f"contacts with {name}", [s["contacts_per_object"].get(name) for s in summaries])
+    for name in objects:
+        body += row(f"{name} moved > 1 cm", [s["moved_per_object"].get(name) for s in summaries])
+    for name in objects:
+        body += row(
+            f"{name}: occupied 2 cm cells (final xy)",
+            [s["final_object_spread"].get(name, {}).get("cells") for s in summaries],
+        )
+    for name in objects:
+        body += row(
+            f"{name}: std of final x / y (m)",
+            [
+                f"{_fmt(s['final_object_spread'][name]['std_x'])} / {_fmt(s['final_object_spread'][name]['std_y'])}"
+                if name in s["final_object_spread"]
+                else None
+                for s in summaries
+            ],
+        )
+    body += row("final tool positions: occupied 2 cm cells", [s["final_tool_spread"]["cells"] for s in summaries])
+    body += row("novelty archive size", [s["archive"] for s in summaries])
+    body += row("wall time of the generation loop (s, from the timings)", [s["wall_time_s"] for s in summaries])
+    body += row("rollout time, all workers (s)", [s["rollout_time_s"] for s in summaries])
+    text = "# babblegen report\n\n" + head + body
+    text += "\n## Infeasible attempts\n\n"
+    reasons = sorted({k for s in summaries for k in s["infeasible_reasons"]})
+    if reasons:
+        text += head + "".join(row(k, [s["infeasible_reasons"].get(k, 0) for s in summaries]) for k in reasons)
+    else:
+        text += "none\n"
+    if comparison is not None:
+        text += "\n## Against the comparison run\n\n"
+        text += f"- contact ratio (contacts / comparison's contacts): {_fmt(comparison['contact_ratio'], 2)}\n"
+        text += f"- contact rate ratio (per attempt): {_fmt(comparison['contact_rate_ratio'], 2)}\n"
+        for name, v in comparison["contact_ratio_per_object"].items():
+            text += f"- {name}: {_fmt(v, 2)}\n"
+    text += "\n## Figures\n\n" + "".join(f"![{k}]({v})\n" for k, v in FIGURES.items())
+    return text
+
+
+def write_report(root: str | Path, compare_to: str | Path | None = None, out: str | Path | None = None) -> dict:
+    """Write the figures and summaries for `root` (and `compare_to`) into `out` (default ROOT/report).
+    Returns the summary written to summary.json."""
+    runs = [Run(root)] + ([Run(compare_to)] if compare_to is not None else [])
+    out = Path(out) if out is not None else Path(root) / "report"
+    out.mkdir(parents=True, exist_ok=True)
+    summaries = [summarize(r) for r in runs]
+    comparison = compare(summaries[0], summaries[1]) if len(runs) > 1 else None
+    figure_final_tool(runs, out / FIGURES["fig2"])
+    figure_final_objects(runs, out / FIGURES["fig3"])
+    figure_accumulated_contacts(runs, out / FIGURES["fig4"])
+    figure_contacts_per_object(runs, out / FIGURES["fig5"])
+    result = {"run": summaries[0], "figures": {k: str(out / v) for k, v in FIGURES.items()}}
+    if comparison is not None:
+        result["compare"] = summaries[1]
+        result["comparison"] = comparison
+    (out / "summary.json").write_text(json.dumps(result, indent=2) + "\n")
+    (out / "summary.md").write_text(markdown(summaries, [r.label for r in runs], comparison))
+    return result

@@ -1,0 +1,309 @@
+"""Rerun recordings: the run's segments and `babblegen view` files load back through Rerun's own Python API,
+hold the expected entities and timelines, agree with the LeRobot dataset, and the run's sink survives crashes
+(rollback) and its own failures (disabled with a warning, the run goes on)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pytest
+from rerun.chunk import RrdReader
+
+from babblegen.cli import main
+from babblegen.exporters.lerobot import load_dataset
+from babblegen.exporters.rerun_log import INDEX, RerunSink, recording_files
+from babblegen.exporters.sidecar import read_attempts, read_run_info
+from babblegen.tasks.pr2_arm import ARM_JOINTS
+from babblegen.world.rollout import Command, Frames, Rollout
+
+TIMELINES = {"frame_index", "timestamp", "index", "episode_index", "attempt"}
+RERUN_CLI = Path(sys.executable).parent / "rerun"
+
+
+def read_recording(*paths: Path) -> dict[str, list[tuple[bool, pa.RecordBatch]]]:
+    """Every chunk of the recording stores in `paths`, by entity: (is_static, record batch)."""
+    out: dict[str, list[tuple[bool, pa.RecordBatch]]] = defaultdict(list)
+    for p in paths:
+        for chunk in RrdReader(p).stream():
+            out[chunk.entity_path].append((chunk.is_static, chunk.to_record_batch()))
+    return out
+
+
+def temporal(chunks, entity: str, component: str, order_by: str = "index") -> tuple[np.ndarray, list]:
+    """A component's values over all temporal chunks of an entity, sorted by a timeline."""
+    times, values = [], []
+    for static, batch in chunks[entity]:
+        if static or component not in batch.schema.names:
+            continue
+        times += batch.column(order_by).to_pylist()
+        values += batch.column(component).to_pylist()
+    order = np.argsort(times, kind="stable")
+    return np.asarray(times)[order], [values[i] for i in order]
+
+
+def dataset_columns(root: Path) -> dict[str, np.ndarray]:
+    ds = load_dataset(root, read_run_info(root)["repo_id"])
+    table = ds.hf_dataset.with_format("arrow")[:]
+    cols = {}
+    for name in ("observation.ee_pos", "observation.contacts", "index", "episode_index", "frame_index"):
+        arr = table.column(name).combine_chunks()
+        cols[name] = np.asarray(arr.to_pylist())
+    cols["total_episodes"] = np.asarray(ds.meta.total_episodes)
+    return cols
+
+
+@pytest.fixture(scope="module")
+def data(small_noveb_dataset) -> dict[str, np.ndarray]:
+    return dataset_columns(small_noveb_dataset)
+
+
+# --- the run's recording -------------------------------------------------------------------------------------
+def test_run_writes_one_verified_segment_per_commit(small_noveb_dataset, data):
+    files = recording_files(small_noveb_dataset)
+    rows = read_attempts(small_noveb_dataset)
+    index = json.loads((small_noveb_dataset / "babblegen" / "rerun" / INDEX).read_text())
+    assert len(files) == len({r["generation"] for r in rows}) == len(index["segments"])  # committed every generation
+    last = index["segments"][-1]
+    assert (last["attempts_end"], last["episodes_end"], last["frames_end"]) == (
+        len(rows),
+        int(data["total_episodes"]),
+        len(data["index"]),
+    )
+    stores = [RrdReader(p).recordings() for p in files]
+    assert all(len(s) == 1 for s in stores)
+    assert len({s[0].recording_id for s in stores}) == 1, "segments merge into one recording"
+    assert all(RrdReader(p).blueprints() for p in files), "each segment opens on the default layout"
+    done = subprocess.run([RERUN_CLI, "rrd", "verify", *files], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+
+
+def test_run_recording_has_the_expected_entities_and_timelines(small_noveb_dataset):
+    files = recording_files(small_noveb_dataset)
+    schema = RrdReader(files[-1]).store().schema()
+    assert {c.name for c in schema.index_columns()} == TIMELINES
+    entities = {c.entity_path for c in schema.component_columns()}
+    names = read_run_info(small_noveb_dataset)["object_names"]
+    expected = {
+        "/world/table",
+        "/world/robot/base/box",
+        "/world/robot/arm/box",
+        "/world/robot/arm/cylinder",
+        "/world/robot/arm/sphere",
+        "/world/head_camera",
+        "/world/head_camera/image",
+        "/world/tool",
+        "/world/tool_path",
+        "/world/object_paths",
+        "/world/contact_events",
+        "/contacts",
+        "/state",
+        "/attempts/novelty",
+        "/attempts/archived",
+        "/attempts/feasible",
+        "/attempts/contacts/total",
+        "/attempts/contacts/per_object",
+        "/overview/outlines",
+        "/overview/final_tool",
+        *(f"/world/objects/{n}" for n in names),
+        *(f"/overview/final_objects/{n}" for n in names),
+    }
+    assert expected <= entities, expected - entities
+
+
+def test_run_recording_agrees_with_dataset_and_sidecar(small_noveb_dataset, data):
+    chunks = read_recording(*recording_files(small_noveb_dataset))
+    index, tool = temporal(chunks, "/world/tool", "Points3D:positions")
+    np.testing.assert_array_equal(index, data["index"])
+    np.testing.assert_allclose(np.array([p[0] for p in tool]), data["observation.ee_pos"], atol=1e-5)
+    _, contacts = temporal(chunks, "/contacts", "Scalars:scalars")
+    np.testing.assert_array_equal(np.array(contacts), data["observation.contacts"])
+    _, images = temporal(chunks, "/world/head_camera/image", "EncodedImage:blob")
+    assert len(images) == len(data["index"]) and all(bytes(b[0][:2]) == b"\xff\xd8" for b in images), "JPEG"
+
+    rows = read_attempts(small_noveb_dataset)
+    attempts, feasible = temporal(chunks, "/attempts/feasible", "Scalars:scalars", order_by="attempt")
+    assert attempts.tolist() == [r["attempt"] for r in rows]
+    assert [v[0] for v in feasible] == [float(r["feasible"]) for r in rows]
+    _, total = temporal(chunks, "/attempts/contacts/total", "Scalars:scalars", order_by="attempt")
+    assert total[-1][0] == sum(any(r["touched"].values()) for r in rows if r["feasible"])
+    _, final_tool = temporal(chunks, "/overview/final_tool", "Points3D:positions", order_by="attempt")
+    expected = [r["final_ee_pos"] for r in rows if r["feasible"]]
+    np.testing.assert_allclose(np.array([p[0] for p in final_tool]), expected, atol=1e-5)
+
+
+# --- babblegen view --------------------------------------------------------------------------------------------
+def test_view_save_writes_a_recording_built_from_the_dataset(small_noveb_dataset, data, tmp_path):
+    out = tmp_path / "all.rrd"
+    assert main(["view", str(small_noveb_dataset), "--save", str(out)]) == 0
+    reader = RrdReader(out)
+    assert reader.recordings() and reader.blueprints()
+    assert {c.name for c in reader.store().schema().index_columns()} == TIMELINES
+    chunks = read_recording(out)
+    index, tool = temporal(chunks, "/world/tool", "Points3D:positions")
+    np.testing.assert_array_equal(index, data["index"])
+    np.testing.assert_allclose(np.array([p[0] for p in tool]), data["observation.ee_pos"], atol=1e-6)
+    _, contacts = temporal(chunks, "/contacts", "Scalars:scalars")
+    np.testing.assert_array_equal(np.array(contacts), data["observation.contacts"])
+    _, images = temporal(chunks, "/world/head_camera/image", "EncodedImage:blob")
+    assert len(images) == len(data["index"])
+    # a finished run's overview is static: every final position, whatever the timeline
+    [(static, batch)] = chunks["/overview/final_tool"]
+    final = [r["final_ee_pos"] for r in read_attempts(small_noveb_dataset) if r["feasible"]]
+    assert static and np.allclose(batch.column("Points3D:positions").to_pylist()[0], final, atol=1e-6)
+
+
+def test_view_one_episode(small_noveb_dataset, data, tmp_path):
+    episode = int(data["total_episodes"]) - 1
+    out = tmp_path / "one.rrd"
+    assert main(["view", str(small_noveb_dataset), "--episode", str(episode), "--save", str(out)]) == 0
+    frames, tool = temporal(read_recording(out), "/world/tool", "Points3D:positions", order_by="frame_index")
+    mine = data["episode_index"] == episode
+    np.testing.assert_array_equal(frames, data["frame_index"][mine])
+    np.testing.assert_allclose(np.array([p[0] for p in tool]), data["observation.ee_pos"][mine], atol=1e-6)
+
+
+def test_view_without_display_writes_a_file_and_says_where(small_noveb_dataset, tmp_path, monkeypatch, capsys):
+    copy = tmp_path / "copy"
+    subprocess.run(["cp", "-r", str(small_noveb_dataset), str(copy)], check=True)
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    monkeypatch.setattr(sys, "platform", "linux")
+    assert main(["view", str(copy), "--episode", "0"]) == 0
+    written = copy / "babblegen" / "view.rrd"
+    assert str(written) in capsys.readouterr().out and RrdReader(written).recordings()
+
+
+@pytest.mark.parametrize("extra", [[], ["--episode", "100000"]])
+def test_view_refuses_what_is_not_there(small_noveb_dataset, tmp_path, capsys, extra):
+    target = small_noveb_dataset if extra else tmp_path
+    assert main(["view", str(target), *extra, "--save", str(tmp_path / "x.rrd")]) == 2
+    assert capsys.readouterr().err.startswith("babblegen: error: ")
+    assert not (tmp_path / "x.rrd").exists()
+
+
+# --- the sink, without a simulator ---------------------------------------------------------------------------
+N_OBJ, DOF, T = 4, 7, 6
+
+
+@pytest.fixture
+def sink_dir(tmp_path) -> Path:
+    from babblegen.tasks import get_task
+
+    task = get_task("noveb_tabletop")
+    (tmp_path / "babblegen").mkdir()
+    info = {"config": {"world": {"fps": 10, "camera_height": 16, "camera_width": 16}}, "task": task.to_dict()}
+    (tmp_path / "babblegen" / "run.json").write_text(json.dumps(info))
+    (tmp_path / "babblegen" / "attempts.jsonl").write_bytes(b"")
+    return tmp_path
+
+
+def fake_attempt(i: int, episode: int | None, rng: np.random.Generator) -> tuple[dict, Rollout]:
+    from babblegen.tasks import get_task
+
+    names = get_task("noveb_tabletop").object_names
+    row = {"attempt": i, "generation": i // 3, "feasible": episode is not None, "episode_index": episode}
+    row.update(novelty=float(i), archived=i % 2 == 0, ee_targets=[[0.7, 0.0, 0.9]])
+    cmd = Command("ee_waypoints", np.zeros((1, 3)))
+    if episode is None:
+        return {**row, "reason": "no_ik"}, Rollout(cmd, False, "no_ik")
+    poses = np.tile([0.7, 0.0, 0.75, 1.0, 0.0, 0.0, 0.0], (T, N_OBJ, 1))
+    contacts = np.zeros((T, N_OBJ))
+    contacts[2, i % N_OBJ] = 1
+    frames = Frames(
+        state=rng.uniform(-1, 0, (T, DOF)),
+        action=np.zeros((T, DOF)),
+        ee_pos=rng.uniform(0, 1, (T, 3)),
+        object_poses=poses,
+        contacts=contacts,
+        images=rng.integers(0, 255, (T, 16, 16, 3), dtype=np.uint8),
+    )
+    row.update(
+        reason="",
+        n_frames=T,
+        touched={n: bool(contacts[:, j].any()) for j, n in enumerate(names)},
+        final_poses={n: poses[-1, j].tolist() for j, n in enumerate(names)},
+        final_ee_pos=[0.7, 0.0, 0.9],
+    )
+    return row, Rollout(cmd, True, ee_targets=np.array([[0.7, 0.0, 0.9]]), frames=frames)
+
+
+def append_rows(root: Path, rows: list[dict]) -> None:
+    with open(root / "babblegen" / "attempts.jsonl", "a") as f:
+        for r in rows:
+            f.write(json.dumps(r) + "\n")
+
+
+def new_sink(root: Path) -> RerunSink:
+    from babblegen.tasks import get_task
+
+    task = get_task("noveb_tabletop")
+    return RerunSink(root, task, list(ARM_JOINTS))
+
+
+def test_sink_rollback_drops_what_came_after_the_last_commit(sink_dir):
+    rng = np.random.default_rng(0)
+    attempts = [fake_attempt(0, 0, rng), fake_attempt(1, None, rng), fake_attempt(2, 1, rng)]
+    sink = new_sink(sink_dir)
+    for row, rollout in attempts:
+        sink.log(row, rollout)
+    append_rows(sink_dir, [row for row, _ in attempts])
+    sink.flush()  # commit point: 3 attempts, 2 episodes
+    for row, rollout in [fake_attempt(3, 2, rng), fake_attempt(4, 3, rng)]:
+        sink.log(row, rollout)
+        append_rows(sink_dir, [row])
+    sink.flush()  # closed, but the process dies before its checkpoint is written
+    sink.log(*fake_attempt(5, 4, rng))  # and a segment that was still open
+    (sink_dir / "babblegen" / "rerun" / "segment-00009.rrd").write_bytes(b"torn")
+    assert sink.enabled
+
+    rows = read_attempts(sink_dir)[:3]  # what resume truncates the table to
+    (sink_dir / "babblegen" / "attempts.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
+    resumed = new_sink(sink_dir)
+    resumed.rollback(2)
+    rerun_dir = sink_dir / "babblegen" / "rerun"
+    assert sorted(p.name for p in rerun_dir.glob("*.rrd")) == ["segment-00000.rrd"]
+    again = fake_attempt(3, 2, rng)
+    resumed.log(*again)
+    resumed.close()
+    files = recording_files(sink_dir)
+    assert [p.name for p in files] == ["segment-00000.rrd", "segment-00001.rrd"]
+    index, _ = temporal(read_recording(*files), "/world/tool", "Points3D:positions")
+    assert index.tolist() == list(range(3 * T)), "the dataset-wide frame index continues after the rollback"
+    _, total = temporal(read_recording(*files), "/attempts/contacts/total", "Scalars:scalars", order_by="attempt")
+    assert [v[0] for v in total] == [1.0, 1.0, 2.0, 3.0]
+
+
+def test_sink_failure_warns_once_and_disables_it(sink_dir):
+    rng = np.random.default_rng(1)
+    sink = new_sink(sink_dir)
+    row, rollout = fake_attempt(0, 0, rng)
+    rollout.frames.state = rollout.frames.state[:, :3]  # wrong shape: logging it fails
+    with pytest.warns(RuntimeWarning, match="Rerun recording stopped"):
+        sink.log(row, rollout)
+    assert not sink.enabled
+    sink.log(*fake_attempt(1, 1, rng))  # no-ops from now on, no second warning, no exception
+    sink.flush()
+    sink.close()
+
+
+def test_sink_lets_an_interruption_through(sink_dir, monkeypatch):
+    import babblegen.exporters.rerun_log as rerun_log
+    from babblegen.run import Interrupted
+
+    def interrupted(*_args, **_kwargs):
+        raise Interrupted("SIGTERM")
+
+    monkeypatch.setattr(rerun_log.EpisodeColumns, "add", interrupted)
+    sink = new_sink(sink_dir)
+    with pytest.raises(Interrupted):
+        sink.log(*fake_attempt(0, 0, np.random.default_rng(2)))
+    assert sink.enabled
+    sink.close()
+    segment = json.loads((sink_dir / "babblegen" / "rerun" / INDEX).read_text())["segments"][0]
+    assert segment["attempts_end"] == 1, "a segment cut mid-attempt covers that attempt, so resume drops it"
