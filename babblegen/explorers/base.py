@@ -14,6 +14,8 @@ from typing import Any
 
 import numpy as np
 
+from babblegen.novelty import Archive, MostNovel
+
 __all__ = ["Candidate", "Evaluation", "Explorer", "build_config", "check_descriptors"]
 
 KIND_WAYPOINTS = "ee_waypoints"
@@ -75,6 +77,64 @@ class Explorer(ABC):
     def done(self) -> bool:
         """True once the configured number of generations has been told."""
         return self.generation >= int(getattr(self.config, "generations", 0))
+
+
+class ArchiveExplorer(Explorer):
+    """The state every generational explorer here shares: its RNG, novelty archive and archive policy,
+    the generation and attempt counters, and the batch handed out by ``ask`` and not yet told.
+
+    Subclasses set ``config_class`` and add their own state through ``_extra_state`` / ``_load_extra_state``.
+    """
+
+    config_class: type
+
+    def __init__(self, config: Any, rng_seed: int) -> None:
+        self.config = build_config(self.config_class, config)
+        self.rng = np.random.default_rng(rng_seed)
+        self.archive = Archive()
+        self.policy = MostNovel(self.config.archive_per_generation)
+        self._generation = 0
+        self._next_index = 0
+        self._pending: list[Candidate] = []
+
+    @property
+    def generation(self) -> int:
+        return self._generation
+
+    @property
+    def archive_size(self) -> int:
+        return len(self.archive)
+
+    def _extra_state(self) -> dict[str, Any]:
+        return {}
+
+    def _load_extra_state(self, state: dict[str, Any]) -> None:
+        pass
+
+    def state_dict(self) -> dict[str, Any]:
+        return {
+            "name": self.name,
+            "config": dataclasses.asdict(self.config),
+            "rng": self.rng.bit_generator.state,
+            "generation": self._generation,
+            "next_index": self._next_index,
+            "pending": [dataclasses.asdict(c) for c in self._pending],
+            "archive": self.archive.state_dict(),
+            **self._extra_state(),
+        }
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        if state.get("name") != self.name:
+            raise ValueError(f"state is for explorer {state.get('name')!r}, not {self.name!r}")
+        self.config = build_config(self.config_class, dict(state["config"]))
+        self.policy = MostNovel(self.config.archive_per_generation)
+        self.rng.bit_generator.state = state["rng"]
+        self._generation = int(state["generation"])
+        self._next_index = int(state["next_index"])
+        self._pending = [Candidate(**{**c, "genome": np.array(c["genome"])}) for c in state["pending"]]
+        self.archive = Archive()
+        self.archive.load_state_dict(state["archive"])
+        self._load_extra_state(state)
 
 
 def build_config[C](cls: type[C], config: C | dict[str, Any] | None) -> C:

@@ -22,14 +22,13 @@ import numpy as np
 
 from babblegen.explorers.base import (
     KIND_WAYPOINTS,
+    ArchiveExplorer,
     Candidate,
     Evaluation,
-    Explorer,
-    build_config,
     check_descriptors,
 )
 from babblegen.genome import crossover, extend, gaussian_mutation, random_genome
-from babblegen.novelty import Archive, MostNovel, novelty
+from babblegen.novelty import novelty
 from babblegen.selection import binary_tournament, crowding_distance, non_dominated_sort, nsga2_select
 
 __all__ = ["NovEB", "NovEBConfig"]
@@ -84,10 +83,11 @@ class NovEBConfig:
         return int(round(self.population * (1.0 / self.keep_fraction - 1.0)))
 
 
-class NovEB(Explorer):
+class NovEB(ArchiveExplorer):
     """Novelty search over end-effector waypoint lists (see the module docstring for the generation flow)."""
 
     name = "noveb"
+    config_class = NovEBConfig
 
     def __init__(
         self,
@@ -97,17 +97,11 @@ class NovEB(Explorer):
         start_norm: np.ndarray,
         joint_limits: np.ndarray | None = None,
     ) -> None:
-        self.config = build_config(NovEBConfig, config)
+        super().__init__(config, rng_seed)
         start = np.asarray(start_norm, dtype=np.float64)
         if start.shape != (3,) or not np.all(np.isfinite(start)):
             raise ValueError(f"start_norm must be a finite (3,) array, got {start}")
         self.start_norm = start
-        self.rng = np.random.default_rng(rng_seed)
-        self.archive = Archive()
-        self.policy = MostNovel(self.config.archive_per_generation)
-        self._generation = 0
-        self._next_index = 0
-        self._pending: list[Candidate] = []
         # Current parents: genomes, descriptors (p, w), attempt indices, novelty at their last evaluation.
         self._parents: list[np.ndarray] = []
         self._parent_codes = np.zeros((0, 1), dtype=np.uint64)
@@ -115,14 +109,6 @@ class NovEB(Explorer):
         self._parent_novelty = np.zeros(0, dtype=np.float64)
 
     # ------------------------------------------------------------------ properties
-    @property
-    def generation(self) -> int:
-        return self._generation
-
-    @property
-    def archive_size(self) -> int:
-        return len(self.archive)
-
     @property
     def parents(self) -> list[int]:
         """Attempt indices of the current parents (the survivors of the last selection)."""
@@ -195,35 +181,18 @@ class NovEB(Explorer):
         return evaluations
 
     # ------------------------------------------------------------------ checkpointing
-    def state_dict(self) -> dict[str, Any]:
+    def _extra_state(self) -> dict[str, Any]:
         return {
-            "name": self.name,
-            "config": dataclasses.asdict(self.config),
             "start_norm": self.start_norm.copy(),
-            "rng": self.rng.bit_generator.state,
-            "generation": self._generation,
-            "next_index": self._next_index,
-            "pending": [dataclasses.asdict(c) for c in self._pending],
             "parents": [g.copy() for g in self._parents],
             "parent_codes": self._parent_codes.copy(),
             "parent_index": self._parent_index.copy(),
             "parent_novelty": self._parent_novelty.copy(),
-            "archive": self.archive.state_dict(),
         }
 
-    def load_state_dict(self, state: dict[str, Any]) -> None:
-        if state.get("name") != self.name:
-            raise ValueError(f"state is for explorer {state.get('name')!r}, not {self.name!r}")
-        self.config = build_config(NovEBConfig, dict(state["config"]))
-        self.policy = MostNovel(self.config.archive_per_generation)
+    def _load_extra_state(self, state: dict[str, Any]) -> None:
         self.start_norm = np.asarray(state["start_norm"], dtype=np.float64).copy()
-        self.rng.bit_generator.state = state["rng"]
-        self._generation = int(state["generation"])
-        self._next_index = int(state["next_index"])
-        self._pending = [Candidate(**{**c, "genome": np.array(c["genome"])}) for c in state["pending"]]
         self._parents = [np.array(g, dtype=np.float64) for g in state["parents"]]
         self._parent_codes = np.array(state["parent_codes"], dtype=np.uint64)
         self._parent_index = np.array(state["parent_index"], dtype=np.int64)
         self._parent_novelty = np.array(state["parent_novelty"], dtype=np.float64)
-        self.archive = Archive()
-        self.archive.load_state_dict(state["archive"])

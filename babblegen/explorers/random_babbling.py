@@ -16,13 +16,12 @@ import numpy as np
 
 from babblegen.explorers.base import (
     KIND_JOINTS,
+    ArchiveExplorer,
     Candidate,
     Evaluation,
-    Explorer,
-    build_config,
     check_descriptors,
 )
-from babblegen.novelty import Archive, MostNovel, novelty
+from babblegen.novelty import novelty
 
 __all__ = ["RandomBabbling", "RandomBabblingConfig"]
 
@@ -47,10 +46,11 @@ class RandomBabblingConfig:
             raise ValueError(f"archive_per_generation must be an integer >= 0, got {self.archive_per_generation}")
 
 
-class RandomBabbling(Explorer):
+class RandomBabbling(ArchiveExplorer):
     """Uniform random joint targets; novelty is recorded for comparison only."""
 
     name = "random"
+    config_class = RandomBabblingConfig
 
     def __init__(
         self,
@@ -60,27 +60,13 @@ class RandomBabbling(Explorer):
         joint_limits: np.ndarray,
         start_norm: np.ndarray | None = None,
     ) -> None:
-        self.config = build_config(RandomBabblingConfig, config)
+        super().__init__(config, rng_seed)
         limits = np.asarray(joint_limits, dtype=np.float64)
         if limits.ndim != 2 or limits.shape[1] != 2 or not np.all(np.isfinite(limits)):
             raise ValueError(f"joint_limits must be a finite (n_joints, 2) array, got shape {limits.shape}")
         if np.any(limits[:, 0] > limits[:, 1]):
             raise ValueError("joint_limits must have lower <= upper for every joint")
         self.joint_limits = limits
-        self.rng = np.random.default_rng(rng_seed)
-        self.archive = Archive()
-        self.policy = MostNovel(self.config.archive_per_generation)
-        self._generation = 0
-        self._next_index = 0
-        self._pending: list[Candidate] = []
-
-    @property
-    def generation(self) -> int:
-        return self._generation
-
-    @property
-    def archive_size(self) -> int:
-        return len(self.archive)
 
     def ask(self) -> list[Candidate]:
         if not self._pending:
@@ -108,27 +94,8 @@ class RandomBabbling(Explorer):
         self._generation += 1
         return evaluations
 
-    def state_dict(self) -> dict[str, Any]:
-        return {
-            "name": self.name,
-            "config": dataclasses.asdict(self.config),
-            "joint_limits": self.joint_limits.copy(),
-            "rng": self.rng.bit_generator.state,
-            "generation": self._generation,
-            "next_index": self._next_index,
-            "pending": [dataclasses.asdict(c) for c in self._pending],
-            "archive": self.archive.state_dict(),
-        }
+    def _extra_state(self) -> dict[str, Any]:
+        return {"joint_limits": self.joint_limits.copy()}
 
-    def load_state_dict(self, state: dict[str, Any]) -> None:
-        if state.get("name") != self.name:
-            raise ValueError(f"state is for explorer {state.get('name')!r}, not {self.name!r}")
-        self.config = build_config(RandomBabblingConfig, dict(state["config"]))
-        self.policy = MostNovel(self.config.archive_per_generation)
+    def _load_extra_state(self, state: dict[str, Any]) -> None:
         self.joint_limits = np.asarray(state["joint_limits"], dtype=np.float64).copy()
-        self.rng.bit_generator.state = state["rng"]
-        self._generation = int(state["generation"])
-        self._next_index = int(state["next_index"])
-        self._pending = [Candidate(**{**c, "genome": np.array(c["genome"])}) for c in state["pending"]]
-        self.archive = Archive()
-        self.archive.load_state_dict(state["archive"])
