@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from babblegen.scene import TaskSpec
 
-from . import noveb_tabletop  # noqa: F401  (registers the scene)
+from . import noveb_tabletop, wall_tabletop  # noqa: F401  (register the scenes)
 from .registry import TASKS
 
 DEFAULT_TASK = "noveb_tabletop"

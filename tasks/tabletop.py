@@ -15,11 +15,13 @@ from mani_skill.utils.structs import Pose
 from mani_skill.utils.structs.types import SimConfig
 
 from babblegen.scene import ObjectSpec, TaskSpec
+from babblegen.world.collision import Box
 
 from . import pr2_arm  # noqa: F401  (registers the agent)
 
 # A URDF/SAPIEN cylinder's axis is x; this turns it upright.
 _UPRIGHT = [np.sqrt(0.5), 0.0, -np.sqrt(0.5), 0.0]
+OBSTACLE_COLOR = [0.55, 0.6, 0.72, 1.0]  # static obstacles (TaskSpec.extra_obstacles): slate blue
 
 
 class TabletopEnv(BaseEnv):
@@ -94,8 +96,21 @@ class TabletopEnv(BaseEnv):
         )
         floor.initial_pose = sapien.Pose(p=[0, 0, -0.01])
         self.floor = floor.build_static(name="floor")
+        self.obstacles = [self._build_obstacle(box) for box in spec.extra_obstacles]
         for obj in spec.objects:
             self.objects[obj.name] = self._build_object(obj)
+
+    def _build_obstacle(self, box: Box):
+        """A static box that is also a planning obstacle (TaskSpec.extra_obstacles): walls, shelves."""
+        builder = self.scene.create_actor_builder()
+        builder.add_box_collision(half_size=list(box.half_extents))
+        builder.add_box_visual(
+            half_size=list(box.half_extents), material=sapien.render.RenderMaterial(base_color=OBSTACLE_COLOR)
+        )
+        pose = np.eye(4)
+        pose[:3, :3], pose[:3, 3] = np.asarray(box.rotation), np.asarray(box.center)
+        builder.initial_pose = sapien.Pose(pose)
+        return builder.build_static(name=box.name)
 
     def _build_object(self, obj: ObjectSpec):
         builder = self.scene.create_actor_builder()
