@@ -157,7 +157,7 @@ def cmd_generate(args: argparse.Namespace) -> int:
         data = load_toml(args.config) if args.config else {}
         data = merge(data, _overrides(args))
         run = Run.start(args.out, RunConfig.from_dict(data))
-    summary = run.execute(progress=not args.no_progress and sys.stderr.isatty() or not args.no_progress)
+    summary = run.execute(progress=not args.no_progress)
     for line in summary.lines():
         print(line)
     if summary.interrupted:
