@@ -16,7 +16,6 @@ import os
 import pickle
 import platform
 import shutil
-import signal
 import sys
 import time
 from dataclasses import dataclass
@@ -35,6 +34,7 @@ from babblegen.exporters.sidecar import (
     read_run_info,
     sidecar_dir,
 )
+from babblegen.interrupts import Interrupted, Interrupts
 from babblegen.world.rollout import Command, Rollout
 
 FORMAT_VERSION = 1
@@ -49,10 +49,6 @@ PACKAGES = (
     "rerun-sdk",
     "numpy",
 )
-
-
-class Interrupted(Exception):
-    """Raised inside the loop by SIGINT / SIGTERM."""
 
 
 @dataclass
@@ -320,32 +316,27 @@ class Run:
                 f"({self.counters['attempts']} attempts, {self.counters['executed']} episodes)"
             )
         interrupted = False
-        previous = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
-
-        def _raise(signum, frame):
-            raise Interrupted(signal.Signals(signum).name)
-
-        for s in previous:
-            signal.signal(s, _raise)
         bar = _progress(progress, self.total_generations * self.config.noveb.population, self.counters["attempts"])
-        try:
-            self._loop(bar)
-            self._commit(reopen=False)
-        except (Interrupted, KeyboardInterrupt):
-            interrupted = True
-        finally:
-            for s, h in previous.items():
-                signal.signal(s, h)
-            if bar is not None:
-                bar.close()
-            # Whatever happened, close the dataset so what is written loads.
-            if self.writer is not None:
-                self.writer.finalize()
-            for sink in self.sinks:
-                sink.close()
-            if self.log is not None:
-                self.log.close()
-            self.evaluator.close()
+        with Interrupts() as self._interrupts:
+            try:
+                self._loop(bar)
+                with self._interrupts.protected():
+                    self._commit(reopen=False)
+            except (Interrupted, KeyboardInterrupt):
+                interrupted = True
+            finally:
+                with self._interrupts.closing():
+                    if bar is not None:
+                        bar.close()
+                    # Whatever happened, close the dataset so what is written loads.
+                    if self.writer is not None:
+                        self.writer.finalize()
+                    for sink in self.sinks:
+                        sink.close()
+                    if self.log is not None:
+                        self.log.close()
+                    self.evaluator.close()
+            interrupted = interrupted or self._interrupts.pending is not None
         return RunSummary(
             self.out,
             self.counters["attempts"],
@@ -381,31 +372,33 @@ class Run:
             next_cands = None if self.explorer.done else self._submit()
             self._write_generation(cands, rollouts, codes, evaluations, t_desc, t_wait, bar)
             if self.counters["generations"] % self.config.checkpoint_every == 0:
-                self._commit()
+                with self._interrupts.protected():
+                    self._commit()
             if next_cands is None:
                 return
             cands = next_cands
 
     def _write_generation(self, cands, rollouts, codes, evaluations, t_desc, t_wait, bar) -> None:
         for cand, r, code, ev, td in zip(cands, rollouts, codes, evaluations, t_desc, strict=True):
-            episode = None
-            failures = int(r.timings.pop("worker_failures", 0))
-            t = time.perf_counter()
-            if r.feasible:
-                episode = self.writer.add_episode(r.frames, self.task_text)
-                self.counters["executed"] += 1
-                self.counters["contacts"] += int(r.touched.any())
-            t_write = time.perf_counter() - t
-            row = self._row(cand, r, code, ev, episode, {"descriptor": td, "write": t_write})
-            row["timings"]["wait_for_batch"] = round(t_wait, 5)
-            row["worker_failures"] = failures
-            self.counters["worker_failures"] += failures
-            self.log.append(row)
-            for sink in self.sinks:
-                sink.log(row, r)
-            self.counters["attempts"] += 1
-            if bar is not None:
-                bar.update(1)
+            with self._interrupts.protected():
+                episode = None
+                failures = int(r.timings.pop("worker_failures", 0))
+                t = time.perf_counter()
+                if r.feasible:
+                    episode = self.writer.add_episode(r.frames, self.task_text)
+                    self.counters["executed"] += 1
+                    self.counters["contacts"] += int(r.touched.any())
+                t_write = time.perf_counter() - t
+                row = self._row(cand, r, code, ev, episode, {"descriptor": td, "write": t_write})
+                row["timings"]["wait_for_batch"] = round(t_wait, 5)
+                row["worker_failures"] = failures
+                self.counters["worker_failures"] += failures
+                self.log.append(row)
+                for sink in self.sinks:
+                    sink.log(row, r)
+                self.counters["attempts"] += 1
+                if bar is not None:
+                    bar.update(1)
         self.counters["generations"] += 1
         if bar is not None:
             bar.set_postfix(

@@ -731,7 +731,7 @@ def _guarded(method: Callable) -> Callable:
         try:
             return method(self, *args, **kwargs)
         except Exception as e:
-            from babblegen.run import Interrupted
+            from babblegen.interrupts import Interrupted
 
             if isinstance(e, Interrupted):
                 raise

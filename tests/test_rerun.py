@@ -294,7 +294,7 @@ def test_sink_failure_warns_once_and_disables_it(sink_dir):
 
 def test_sink_lets_an_interruption_through(sink_dir, monkeypatch):
     import babblegen.exporters.rerun_log as rerun_log
-    from babblegen.run import Interrupted
+    from babblegen.interrupts import Interrupted
 
     def interrupted(*_args, **_kwargs):
         raise Interrupted("SIGTERM")

@@ -1,0 +1,70 @@
+"""SIGINT / SIGTERM handling that never tears a dataset write in half.
+
+A signal raises `Interrupted` at once while the run is simulating or waiting, so a stop is prompt. Inside a
+`protected()` section (writing an episode, committing) the stop is held until the section ends, because LeRobot's
+writer runs image-writer threads and an encoder that an exception raised in the middle leaves inconsistent. A
+second signal during a protected section raises at once: the user insists. During `closing()` signals are only
+recorded, so the final commit completes.
+"""
+
+from __future__ import annotations
+
+import signal
+from collections.abc import Iterator
+from contextlib import contextmanager
+
+SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+
+class Interrupted(Exception):
+    """Raised inside the loop by SIGINT / SIGTERM."""
+
+
+class Interrupts:
+    """Install with `with Interrupts() as stop:`; the previous handlers come back on exit."""
+
+    def __init__(self) -> None:
+        self.pending: str | None = None
+        self._depth = 0
+        self._closing = False
+        self._previous: dict = {}
+
+    def __enter__(self) -> Interrupts:
+        self._previous = {s: signal.getsignal(s) for s in SIGNALS}
+        for s in SIGNALS:
+            signal.signal(s, self._handle)
+        return self
+
+    def __exit__(self, *exc) -> None:
+        for s, handler in self._previous.items():
+            signal.signal(s, handler)
+
+    def _handle(self, signum: int, frame) -> None:
+        name = signal.Signals(signum).name
+        if self._closing:
+            self.pending = self.pending or name
+            return
+        if self._depth and self.pending is None:
+            self.pending = name
+            return
+        raise Interrupted(name)
+
+    @contextmanager
+    def protected(self) -> Iterator[None]:
+        """Hold a stop until the block is done, then raise it."""
+        self._depth += 1
+        try:
+            yield
+        finally:
+            self._depth -= 1
+        if not self._depth and self.pending is not None:
+            raise Interrupted(self.pending)
+
+    @contextmanager
+    def closing(self) -> Iterator[None]:
+        """Record signals without raising, for the final commit and cleanup."""
+        self._closing = True
+        try:
+            yield
+        finally:
+            self._closing = False

@@ -1,0 +1,54 @@
+import os
+import signal
+
+import pytest
+
+from babblegen.interrupts import Interrupted, Interrupts
+
+
+def _term() -> None:
+    os.kill(os.getpid(), signal.SIGTERM)
+
+
+def test_a_signal_outside_a_write_stops_at_once():
+    done = []
+    with Interrupts(), pytest.raises(Interrupted, match="SIGTERM"):
+        _term()
+        done.append("after")
+    assert done == []
+
+
+def test_a_signal_during_a_write_waits_for_the_write_to_finish():
+    steps = []
+    with Interrupts() as stop, pytest.raises(Interrupted, match="SIGINT"), stop.protected():
+        os.kill(os.getpid(), signal.SIGINT)
+        steps.append("rest of the write")
+        with stop.protected():  # nested sections hold it to the outermost end
+            steps.append("inner")
+        steps.append("end of the write")
+    assert steps == ["rest of the write", "inner", "end of the write"]
+
+
+def test_a_second_signal_during_a_write_stops_at_once():
+    steps = []
+    with Interrupts() as stop, pytest.raises(Interrupted), stop.protected():
+        _term()
+        steps.append("first held")
+        _term()
+        steps.append("never")
+    assert steps == ["first held"]
+
+
+def test_signals_during_closing_are_recorded_only():
+    with Interrupts() as stop:
+        with stop.closing():
+            _term()
+            _term()
+        assert stop.pending == "SIGTERM"
+
+
+def test_previous_handlers_come_back():
+    before = signal.getsignal(signal.SIGTERM)
+    with Interrupts():
+        assert signal.getsignal(signal.SIGTERM) is not before
+    assert signal.getsignal(signal.SIGTERM) is before
