@@ -21,6 +21,10 @@ from babblegen.world.rollout import Frames
 HEAD = "observation.images.head"
 ROLLED_META = ("meta/info.json", "meta/stats.json", "meta/tasks.parquet")
 TRACKED_DIRS = ("data", "videos", "meta/episodes")
+# Frames go straight to an encoder thread (no PNG round trip, image stats computed while encoding): measured
+# 290 -> 238 ms per 24-frame 128x128 episode. LeRobot drops frames when this queue is full, and an episode's
+# frames arrive at once, so it holds any episode.
+STREAMING = {"streaming_encoding": True, "encoder_queue_maxsize": 100_000}
 
 
 def features(joint_names: list[str], object_names: list[str], height: int, width: int) -> dict:
@@ -65,14 +69,14 @@ class EpisodeWriter:
     def create(cls, root: Path, repo_id: str, fps: int, feats: dict, robot_type: str) -> EpisodeWriter:
         lerobot_dataset = _import_lerobot()
         ds = lerobot_dataset.create(
-            repo_id=repo_id, fps=fps, features=feats, root=root, robot_type=robot_type, use_videos=True
+            repo_id=repo_id, fps=fps, features=feats, root=root, robot_type=robot_type, use_videos=True, **STREAMING
         )
         return cls(root, repo_id, ds)
 
     @classmethod
     def reopen(cls, root: Path, repo_id: str) -> EpisodeWriter:
         lerobot_dataset = _import_lerobot()
-        return cls(root, repo_id, lerobot_dataset.resume(repo_id, root=root))
+        return cls(root, repo_id, lerobot_dataset.resume(repo_id, root=root, **STREAMING))
 
     @property
     def num_episodes(self) -> int:
@@ -153,13 +157,16 @@ def rollback(root: Path, record: dict) -> list[str]:
         if name not in record["meta"] and (root / name).exists():
             (root / name).unlink()
             removed.append(name)
-    # temporary frames LeRobot kept for an episode that was never saved
-    images = root / "images"
-    if images.exists():
-        import shutil
+    # temporary frames or streamed video LeRobot kept for an episode that was never saved
+    import shutil
 
-        shutil.rmtree(images)
-        removed.append("images/")
+    leftovers = [root / "images"] + [
+        d for d in root.glob("tmp*") if d.is_dir() and all(f.name.endswith("_streaming.mp4") for f in d.iterdir())
+    ]
+    for d in leftovers:
+        if d.is_dir():
+            shutil.rmtree(d)
+            removed.append(f"{d.name}/")
     return removed
 
 

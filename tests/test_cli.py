@@ -173,6 +173,8 @@ def test_sigkill_then_resume_matches_an_uninterrupted_run(small_run, tmp_path):
     for key in ("observation.state", "action", "observation.environment_state", "observation.contacts"):
         np.testing.assert_array_equal(got.hf_dataset[key], ref.hf_dataset[key])
     assert got.hf_dataset["episode_index"] == ref.hf_dataset["episode_index"]
+    leftovers = [*killed.glob("tmp*"), *(p for p in (killed / "images").rglob("*") if p.is_file())]
+    assert leftovers == [], "what the killed writer had in flight is gone"
 
 
 def test_sigterm_leaves_a_dataset_that_loads(tmp_path):
