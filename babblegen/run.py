@@ -391,6 +391,7 @@ class Run:
                 t_write = time.perf_counter() - t
                 row = self._row(cand, r, code, ev, episode, {"descriptor": td, "write": t_write})
                 row["timings"]["wait_for_batch"] = round(t_wait, 5)
+                row["timings"]["written_at"] = round(time.time(), 3)
                 row["worker_failures"] = failures
                 self.counters["worker_failures"] += failures
                 self.log.append(row)
