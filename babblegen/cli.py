@@ -105,7 +105,12 @@ def build_parser() -> argparse.ArgumentParser:
         help="generations between commit points [default: 10]",
     )
     g.add_argument("--workers", type=_positive("--workers"), default=None, help="local rollout processes [default: 1]")
-    g.add_argument("--ray", default=None, help="evaluate on a Ray cluster: 'auto' or an address [default: off]")
+    g.add_argument(
+        "--ray",
+        default=None,
+        help="evaluate on a Ray cluster: 'auto' (the running one, else a local one started for the run), "
+        "'local', or an address [default: off]",
+    )
     g.add_argument(
         "--rerun",
         action=argparse.BooleanOptionalAction,

@@ -188,13 +188,16 @@ class RayEvaluator(Evaluator):
         import ray
 
         self.ray = ray
-        if not ray.is_initialized():
-            ray.init(
-                address=None if address == "local" else address,
-                include_dashboard=False,
-                log_to_driver=False,
-                configure_logging=False,
-            )
+        self._owns_ray = not ray.is_initialized()
+        if self._owns_ray:
+            options = {"include_dashboard": False, "log_to_driver": False, "configure_logging": False}
+            try:
+                ray.init(address=None if address == "local" else address, **options)
+            except ConnectionError:
+                if address != "auto":
+                    raise ConfigError(f"--ray {address}: no Ray cluster there") from None
+                log.info("no running Ray cluster; starting a local one")
+                ray.init(address=None, **options)
         n = n or max(int(ray.cluster_resources().get("CPU", 1)), 1)
 
         @ray.remote(num_cpus=1, max_restarts=0)
@@ -277,7 +280,7 @@ class RayEvaluator(Evaluator):
     def close(self) -> None:
         for a in self.actors:
             self.ray.kill(a)
-        if getattr(self, "_owns_ray", False):
+        if self._owns_ray:
             self.ray.shutdown()
 
 

@@ -49,15 +49,16 @@ def test_two_workers_write_the_same_dataset_as_one(one_worker, tmp_path):
     assert read_run_info(out)["config"]["workers"] == 2
 
 
-def test_ray_local_cluster_writes_the_same_dataset(one_worker, tmp_path):
+def test_ray_auto_starts_a_local_cluster_and_writes_the_same_dataset(one_worker, tmp_path):
     ray = pytest.importorskip("ray")
-    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+    assert not ray.is_initialized()
+    out = tmp_path / "ray"
     try:
-        out = tmp_path / "ray"
         assert main(["generate", "--out", str(out), "--seed", "4", "--ray", "auto", "--workers", "2", *ARGS]) == 0
-        assert_same_dataset(one_worker, out)
+        assert not ray.is_initialized(), "the cluster the run started is shut down with it"
     finally:
         ray.shutdown()
+    assert_same_dataset(one_worker, out)
 
 
 def _commands(n: int) -> list[Command]:
