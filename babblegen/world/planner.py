@@ -72,6 +72,7 @@ class JointPlanner:
         self._validator = _BatchMotionValidator(si, model, self.dof, resolution)
         si.setMotionValidator(self._validator)
         self.si = si
+        self._warmed = False
 
     def _state_valid(self, state) -> bool:
         q = np.fromiter((state[i] for i in range(self.dof)), float, self.dof)
@@ -88,6 +89,19 @@ class JointPlanner:
         t0 = time.perf_counter()
         if self.model.motion_free(start, goal, self.resolution):
             return PlanResult(np.stack([start, goal]), "direct", time.perf_counter() - t0)
+        if not self._warmed:
+            # The first solve on a SimpleSetup draws random numbers during one-time set-up, so the first RRT
+            # query a planner answers would differ from the same query later. An empty solve absorbs that.
+            self._solve(start, goal, 0, t0)
+            self._warmed = True
+        if not self._solve(start, goal, self.max_iterations, t0):
+            return PlanResult(None, "none", time.perf_counter() - t0)
+        p = self.setup.getSolutionPath()
+        path = np.array([[p.getState(i)[j] for j in range(self.dof)] for i in range(p.getStateCount())])
+        return PlanResult(self.shortcut(path), "rrtconnect", time.perf_counter() - t0)
+
+    def _solve(self, start: np.ndarray, goal: np.ndarray, max_iterations: int, t0: float) -> bool:
+        """One RRTConnect query, seeded from the motion; True if it found an exact solution."""
         seed = zlib.crc32(np.round(np.concatenate([start, goal]), 9).tobytes()) | 1
         ou.RNG.setSeed(seed)
         self.setup.clear()
@@ -98,14 +112,10 @@ class JointPlanner:
 
         def stop() -> bool:
             iterations[0] += 1
-            return iterations[0] > self.max_iterations or time.perf_counter() > deadline
+            return iterations[0] > max_iterations or time.perf_counter() > deadline
 
         self.setup.solve(ob.PlannerTerminationCondition(stop))
-        if not self.setup.haveExactSolutionPath():
-            return PlanResult(None, "none", time.perf_counter() - t0)
-        p = self.setup.getSolutionPath()
-        path = np.array([[p.getState(i)[j] for j in range(self.dof)] for i in range(p.getStateCount())])
-        return PlanResult(self.shortcut(path), "rrtconnect", time.perf_counter() - t0)
+        return bool(self.setup.haveExactSolutionPath())
 
     def shortcut(self, path: np.ndarray) -> np.ndarray:
         """Greedy, deterministic shortening: from each kept waypoint, jump to the farthest one reachable by a
