@@ -6,8 +6,9 @@ seed and the attempt index (see `seeded_rollout`), so the dataset does not depen
 A worker that dies or exceeds the per-rollout timeout is replaced and the rollout retried; each such event is
 counted (`failures`) and reported with the attempt.
 
-`submit` returns at once: the run loop writes the previous generation's episodes while the workers simulate
-the next one, which is what keeps the single writer from becoming the bottleneck.
+`submit` returns at once and hands the batch to a dispatch thread, which keeps every worker busy while the run
+loop writes the previous generation's episodes; `collect` waits for that thread. Without the thread, work would
+only be handed out inside `collect`, and the workers would sit idle for most of the writing.
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ import contextlib
 import logging
 import multiprocessing as mp
 import os
+import threading
 import time
 from collections import deque
 from dataclasses import dataclass, field
@@ -48,6 +50,56 @@ def _worker_main(conn, task_name: str, settings: WorldSettings, run_seed: int) -
     world.close()
 
 
+class _BatchThread(Evaluator):
+    """`submit` runs `_run_batch` on a thread; `collect` waits for it and returns its rollouts (or raises)."""
+
+    _thread: threading.Thread | None = None
+    _closing = False
+
+    def _run_batch(self, commands: list[Command], attempts: list[int]) -> list[Rollout]:
+        raise NotImplementedError
+
+    def submit(self, commands: list[Command], attempts: list[int]) -> None:
+        if self._thread is not None:
+            raise RuntimeError("collect the previous batch first")
+        self._outcome: tuple[str, object] | None = None
+
+        def run() -> None:
+            try:
+                self._outcome = ("ok", self._run_batch(list(commands), list(attempts)))
+            except BaseException as e:  # handed to collect() in the calling thread
+                self._outcome = ("error", e)
+
+        self._thread = threading.Thread(target=run, name="rollout-dispatch", daemon=True)
+        self._thread.start()
+
+    def collect(self) -> list[Rollout]:
+        if self._thread is None:
+            raise RuntimeError("nothing submitted")
+        while self._thread.is_alive():
+            self._thread.join(0.2)  # short waits: the main thread stays responsive to Ctrl-C
+        self._thread = None
+        status, value = self._outcome
+        if status == "error":
+            raise value
+        return value
+
+    def evaluate(self, commands: list[Command], attempts: list[int]) -> list[Rollout]:
+        self.submit(commands, attempts)
+        return self.collect()
+
+    def _stop_dispatch(self) -> None:
+        """Make a running batch give up (on close, e.g. after an interruption) and wait for its thread."""
+        self._closing = True
+        if self._thread is not None:
+            self._thread.join(10)
+            self._thread = None
+
+
+class _Cancelled(Exception):
+    pass
+
+
 @dataclass
 class _Worker:
     process: mp.Process
@@ -64,7 +116,7 @@ class _Batch:
     retries: dict[int, int] = field(default_factory=dict)
 
 
-class ProcessEvaluator(Evaluator):
+class ProcessEvaluator(_BatchThread):
     """`n` local worker processes."""
 
     def __init__(
@@ -77,7 +129,6 @@ class ProcessEvaluator(Evaluator):
         for w in self.workers:
             self._await_ready(w)
         self.failures = 0
-        self._pending: _Batch | None = None
 
     def _spawn(self) -> _Worker:
         parent, child = self.ctx.Pipe()
@@ -101,27 +152,21 @@ class ProcessEvaluator(Evaluator):
         self._await_ready(fresh)
         w.process, w.conn, w.job = fresh.process, fresh.conn, None
 
-    def submit(self, commands: list[Command], attempts: list[int]) -> None:
-        if self._pending is not None:
-            raise RuntimeError("collect the previous batch first")
-        self._pending = _Batch(list(commands), list(attempts))
-        self._queue = deque(range(len(commands)))
-        self._dispatch()
-
-    def _dispatch(self) -> None:
-        b = self._pending
+    def _dispatch(self, b: _Batch, queue: deque) -> None:
         for w in self.workers:
-            if w.job is None and self._queue:
-                i = self._queue.popleft()
+            if w.job is None and queue:
+                i = queue.popleft()
                 w.job = (i, b.commands[i])
                 w.started = time.monotonic()
                 w.conn.send((b.attempts[i], b.commands[i]))
 
-    def collect(self) -> list[Rollout]:
-        b = self._pending
-        if b is None:
-            raise RuntimeError("nothing submitted")
+    def _run_batch(self, commands: list[Command], attempts: list[int]) -> list[Rollout]:
+        b = _Batch(commands, attempts)
+        queue = deque(range(len(commands)))
+        self._dispatch(b, queue)
         while len(b.results) < len(b.commands):
+            if self._closing:
+                raise _Cancelled
             busy = [w for w in self.workers if w.job is not None]
             ready = wait([w.conn for w in busy] + [w.process.sentinel for w in busy], timeout=1.0)
             now = time.monotonic()
@@ -150,19 +195,15 @@ class ProcessEvaluator(Evaluator):
                     if b.retries[i] > self.max_retries:
                         raise RuntimeError(f"attempt {b.attempts[i]} failed on {b.retries[i]} workers")
                     self._replace(w)
-                    self._queue.appendleft(i)
-            self._dispatch()
-        self._pending = None
+                    queue.appendleft(i)
+            self._dispatch(b, queue)
         out = [b.results[i] for i in range(len(b.commands))]
         for i, r in enumerate(out):
             r.timings["worker_failures"] = float(b.retries.get(i, 0))
         return out
 
-    def evaluate(self, commands: list[Command], attempts: list[int]) -> list[Rollout]:
-        self.submit(commands, attempts)
-        return self.collect()
-
     def close(self) -> None:
+        self._stop_dispatch()
         for w in self.workers:
             with contextlib.suppress(BrokenPipeError, OSError):
                 w.conn.send(None)
@@ -172,7 +213,7 @@ class ProcessEvaluator(Evaluator):
                 w.process.kill()
 
 
-class RayEvaluator(Evaluator):
+class RayEvaluator(_BatchThread):
     """One Ray actor per worker, each with its own World; same semantics as ProcessEvaluator."""
 
     def __init__(
@@ -224,21 +265,17 @@ class RayEvaluator(Evaluator):
         ray.get([a.ping.remote() for a in self.actors])
         self.timeout, self.max_retries = timeout, retries
         self.failures = 0
-        self._pending = None
 
-    def submit(self, commands: list[Command], attempts: list[int]) -> None:
-        self._pending = (list(commands), list(attempts))
-
-    def collect(self) -> list[Rollout]:
+    def _run_batch(self, commands: list[Command], attempts: list[int]) -> list[Rollout]:
         ray = self.ray
-        commands, attempts = self._pending
-        self._pending = None
         results: dict[int, Rollout] = {}
         retries: dict[int, int] = {}
         queue = deque(range(len(commands)))
         running: dict = {}  # object ref -> (index, actor, start)
         idle = list(self.actors)
         while len(results) < len(commands):
+            if self._closing:
+                raise _Cancelled
             while idle and queue:
                 i, actor = queue.popleft(), idle.pop()
                 running[actor.rollout.remote(attempts[i], commands[i])] = (i, actor, time.monotonic())
@@ -273,11 +310,8 @@ class RayEvaluator(Evaluator):
             r.timings["worker_failures"] = float(retries.get(i, 0))
         return out
 
-    def evaluate(self, commands: list[Command], attempts: list[int]) -> list[Rollout]:
-        self.submit(commands, attempts)
-        return self.collect()
-
     def close(self) -> None:
+        self._stop_dispatch()
         for a in self.actors:
             self.ray.kill(a)
         if self._owns_ray:
