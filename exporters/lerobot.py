@@ -52,9 +52,12 @@ def _import_lerobot():
     os.environ.setdefault("HF_HUB_OFFLINE", "1")
     os.environ.setdefault("SVT_LOG", "1")  # SVT-AV1: errors only
     import av
+    import datasets
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
     av.logging.set_level(av.logging.ERROR)
+    av.logging.set_libav_level(av.logging.ERROR)  # LeRobot restores FFmpeg's own logger, which prints mp4 notes
+    datasets.disable_progress_bars()  # one "Map" bar per saved episode otherwise
 
     return LeRobotDataset
 
