@@ -43,6 +43,9 @@ def _worker_main(conn, task_name: str, settings: WorldSettings, run_seed: int, s
     would block the worker until the busy parent had read every chunk, and the worker would idle meanwhile.
     """
     os.environ.setdefault("LP_NUM_THREADS", "1")  # one rendering thread per worker process
+    import torch
+
+    torch.set_num_threads(1)  # one core per worker: idle torch threads would spin against the other processes
     from babblegen.evaluation import seeded_rollout
     from babblegen.tasks import get_task
     from babblegen.world.world import World
@@ -274,6 +277,9 @@ class RayEvaluator(_BatchThread):
         class RolloutActor:
             def __init__(self, task_name: str, settings: WorldSettings, run_seed: int):
                 os.environ.setdefault("LP_NUM_THREADS", "1")
+                import torch
+
+                torch.set_num_threads(1)
                 from babblegen.tasks import get_task
                 from babblegen.world.world import World
 
