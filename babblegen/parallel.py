@@ -1,10 +1,10 @@
 """Rollouts on worker processes (local) or Ray actors (a cluster), behind the `Evaluator` interface.
 
 Each worker builds one World and keeps its simulator and renderer warm. Work is handed out one rollout at a
-time to whichever worker is free; results come back in submission order (local workers leave them as files in
-shared memory). Rollouts are seeded from the run seed and the attempt index (see `seeded_rollout`), so the
-dataset does not depend on the number of workers. A worker that dies or exceeds the per-rollout timeout is
-replaced and the rollout retried; each such event is counted (`failures`) and reported with the attempt.
+time to whichever worker is free; results come back in submission order. Rollouts are seeded from the run
+seed and the attempt index (see `seeded_rollout`), so the dataset does not depend on the number of workers.
+A worker that dies or exceeds the per-rollout timeout is replaced and the rollout retried; each such event is
+counted (`failures`) and reported with the attempt.
 
 `submit` returns at once and hands the batch to a dispatch thread, which keeps every worker busy while the run
 loop writes the previous generation's episodes; `collect` waits for that thread. Without the thread, work would
@@ -17,15 +17,11 @@ import contextlib
 import logging
 import multiprocessing as mp
 import os
-import pickle
-import shutil
-import tempfile
 import threading
 import time
 from collections import deque
 from dataclasses import dataclass, field
 from multiprocessing.connection import wait
-from pathlib import Path
 
 from babblegen.config import ConfigError, RunConfig
 from babblegen.evaluation import Evaluator
@@ -36,12 +32,8 @@ from babblegen.world.world import WorldSettings
 log = logging.getLogger(__name__)
 
 
-def _worker_main(conn, task_name: str, settings: WorldSettings, run_seed: int, spool: str) -> None:
-    """Worker loop: build a World once, then answer (attempt, command) requests until told to stop.
-
-    A rollout (a few MB of frames) goes back as a file in `spool` and only its path through the pipe: the pipe
-    would block the worker until the busy parent had read every chunk, and the worker would idle meanwhile.
-    """
+def _worker_main(conn, task_name: str, settings: WorldSettings, run_seed: int) -> None:
+    """Worker loop: build a World once, then answer (attempt, command) requests until told to stop."""
     os.environ.setdefault("LP_NUM_THREADS", "1")  # one rendering thread per worker process
     import torch
 
@@ -57,26 +49,8 @@ def _worker_main(conn, task_name: str, settings: WorldSettings, run_seed: int, s
         if msg is None:
             break
         attempt, command = msg
-        rollout = seeded_rollout(world, command, run_seed, attempt)
-        path = Path(spool) / f"{os.getpid()}-{attempt}.pkl"
-        path.write_bytes(pickle.dumps(rollout, protocol=pickle.HIGHEST_PROTOCOL))
-        conn.send((attempt, str(path)))
+        conn.send((attempt, seeded_rollout(world, command, run_seed, attempt)))
     world.close()
-
-
-def _spool_dir() -> str:
-    """Where workers leave their rollouts: shared memory when there is room, else the temporary directory."""
-    shm = Path("/dev/shm")
-    if shm.is_dir() and os.access(shm, os.W_OK) and shutil.disk_usage(shm).free > 512 * 2**20:
-        return tempfile.mkdtemp(prefix="babblegen-", dir=shm)
-    return tempfile.mkdtemp(prefix="babblegen-")
-
-
-def _take(path: str) -> Rollout:
-    p = Path(path)
-    rollout = pickle.loads(p.read_bytes())
-    p.unlink()
-    return rollout
 
 
 class _BatchThread(Evaluator):
@@ -154,7 +128,6 @@ class ProcessEvaluator(_BatchThread):
         self.task, self.settings, self.run_seed = task, settings, run_seed
         self.timeout, self.max_retries = timeout, retries
         self.ctx = mp.get_context("spawn")
-        self.spool = _spool_dir()
         self.workers = [self._spawn() for _ in range(n)]
         for w in self.workers:
             self._await_ready(w)
@@ -163,7 +136,7 @@ class ProcessEvaluator(_BatchThread):
     def _spawn(self) -> _Worker:
         parent, child = self.ctx.Pipe()
         p = self.ctx.Process(
-            target=_worker_main, args=(child, self.task.name, self.settings, self.run_seed, self.spool), daemon=True
+            target=_worker_main, args=(child, self.task.name, self.settings, self.run_seed), daemon=True
         )
         p.start()
         child.close()
@@ -204,8 +177,7 @@ class ProcessEvaluator(_BatchThread):
                 died = w.process.sentinel in ready or not w.process.is_alive()
                 if w.conn in ready and not died:
                     try:
-                        attempt, path = w.conn.recv()
-                        rollout = _take(path)
+                        attempt, rollout = w.conn.recv()
                     except (EOFError, OSError):
                         died = True
                     else:
@@ -242,7 +214,6 @@ class ProcessEvaluator(_BatchThread):
             w.process.join(10)
             if w.process.is_alive():
                 w.process.kill()
-        shutil.rmtree(self.spool, ignore_errors=True)
 
 
 class RayEvaluator(_BatchThread):
