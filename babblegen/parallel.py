@@ -19,6 +19,7 @@ import multiprocessing as mp
 import os
 import threading
 import time
+from abc import abstractmethod
 from collections import deque
 from dataclasses import dataclass, field
 from multiprocessing.connection import wait
@@ -59,8 +60,8 @@ class _BatchThread(Evaluator):
     _thread: threading.Thread | None = None
     _closing = False
 
-    def _run_batch(self, commands: list[Command], attempts: list[int]) -> list[Rollout]:
-        raise NotImplementedError
+    @abstractmethod
+    def _run_batch(self, commands: list[Command], attempts: list[int]) -> list[Rollout]: ...
 
     def submit(self, commands: list[Command], attempts: list[int]) -> None:
         if self._thread is not None:

@@ -336,7 +336,6 @@ class Run:
                     if self.log is not None:
                         self.log.close()
                     self.evaluator.close()
-            interrupted = interrupted or self._interrupts.pending is not None
         return RunSummary(
             self.out,
             self.counters["attempts"],

@@ -12,6 +12,7 @@ cost stays flat because no file grows past one segment.
 from __future__ import annotations
 
 import os
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -161,8 +162,6 @@ def rollback(root: Path, record: dict) -> list[str]:
             (root / name).unlink()
             removed.append(name)
     # temporary frames or streamed video LeRobot kept for an episode that was never saved
-    import shutil
-
     leftovers = [root / "images"] + [
         d for d in root.glob("tmp*") if d.is_dir() and all(f.name.endswith("_streaming.mp4") for f in d.iterdir())
     ]

@@ -11,13 +11,14 @@ from __future__ import annotations
 
 from mani_skill.utils.registration import register_env
 
-from babblegen.scene import CameraSpec, ObjectSpec, TaskSpec, WorkspaceBox
+from babblegen.scene import CameraSpec, ObjectSpec, TaskSpec
 from babblegen.world.collision import Box
 
+from .noveb_tabletop import SPEC as PAPER_SCENE
 from .registry import register_task
 from .tabletop import TabletopEnv
 
-TABLE_TOP = 0.70
+TABLE_TOP = PAPER_SCENE.table_top
 WALL_HEIGHT = 0.06
 
 SPEC = register_task(
@@ -25,8 +26,7 @@ SPEC = register_task(
         name="wall_tabletop",
         env_id="WallTabletop-v1",
         description=__doc__,
-        # the same table as noveb_tabletop: x 0.45..1.35 (depth), y -0.6..0.6 (width), top at 0.70 m
-        table=Box("table", (0.90, 0.0, TABLE_TOP / 2), (0.45, 0.60, TABLE_TOP / 2)),
+        table=PAPER_SCENE.table,  # x 0.45..1.35 (depth), y -0.6..0.6 (width), top at 0.70 m
         objects=(
             ObjectSpec("crate", "box", (0.07, 0.07, 0.06), (0.25, 0.32, 0.22, 1.0), 80.0, (0.76, 0.20)),
             ObjectSpec("bottle", "cylinder", (0.022, 0.10), (0.95, 0.8, 0.1, 1.0), 0.06, (0.70, -0.02)),
@@ -34,8 +34,7 @@ SPEC = register_task(
             ObjectSpec("cube_green", "box", (0.025, 0.025, 0.025), (0.2, 0.7, 0.3, 1.0), 0.04, (0.68, -0.22)),
             ObjectSpec("cube_purple", "box", (0.025, 0.025, 0.025), (0.6, 0.3, 0.8, 1.0), 0.04, (0.87, -0.35)),
         ),
-        # the same normalised [0,1]^3 box as noveb_tabletop: over the table, up to 0.3 m above it
-        workspace=WorkspaceBox(low=(0.45, -0.55, TABLE_TOP), high=(1.05, 0.35, TABLE_TOP + 0.30)),
+        workspace=PAPER_SCENE.workspace,  # the same normalised [0,1]^3 box: over the table, up to 0.3 m above it
         camera=CameraSpec(eye=(0.05, 0.0, 1.32), target=(0.88, -0.08, TABLE_TOP), fov=0.92),
         # x 0.77..0.79, y -0.50..-0.20, from the table top up 6 cm
         extra_obstacles=(Box("wall", (0.78, -0.35, TABLE_TOP + WALL_HEIGHT / 2), (0.01, 0.15, WALL_HEIGHT / 2)),),
