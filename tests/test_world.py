@@ -23,6 +23,11 @@ PUSH_THROUGH_CAN = np.array([[0.62, -0.08, 0.77], [0.84, -0.08, 0.77]])
 FREE_AIR = np.array([[0.7, -0.3, 0.98]])
 TABLE_TARGET = np.array([[0.7, -0.2, 0.65]])
 FAR_TARGET = np.array([[1.4, 0.0, 0.8]])
+# Three contact-rich movements. After the pose-only reset this project once had, A's outcome depended on which
+# of B or C ran before it (the can ended 63 cm apart).
+SWEEP_A = np.array([[0.726, 0.025, 0.747]])
+SWEEP_B = np.array([[0.88, 0.127, 0.743], [0.7, -0.392, 0.737]])
+SWEEP_C = np.array([[0.676, -0.413, 0.748], [0.481, 0.275, 0.758], [0.62, -0.144, 0.741]])
 
 
 @pytest.fixture(scope="module")
@@ -194,6 +199,18 @@ def test_reset_restores_start_poses(world):
 
 
 # --- joint-space babbling and infeasible commands -----------------------------------------------------------
+def test_outcome_depends_on_the_command_alone(world):
+    """A, B, A, C, A, all with contact: every run of A gives identical frames, whatever ran before."""
+    runs = [world.rollout(waypoints(world, g)) for g in (SWEEP_A, SWEEP_B, SWEEP_A, SWEEP_C, SWEEP_A)]
+    assert all(r.feasible and r.touched.any() for r in runs), [(r.reason, r.touched) for r in runs]
+    first = runs[0].frames
+    for again in (runs[2].frames, runs[4].frames):
+        assert len(again) == len(first)
+        for field in ("images", "state", "action", "ee_pos", "object_poses", "contacts"):
+            assert np.array_equal(getattr(again, field), getattr(first, field)), field
+    assert not np.array_equal(runs[1].final_poses, runs[0].final_poses)  # B really did something else
+
+
 def test_joint_target_executes_and_returns_home(world):
     w = world
     rng = np.random.default_rng(3)
