@@ -9,7 +9,7 @@ from pathlib import Path
 
 from babblegen.config import ConfigError, RunConfig, load_toml, merge
 from babblegen.explorers.noveb import NovEBConfig
-from babblegen.world.world import WorldSettings
+from babblegen.world.settings import WorldSettings
 
 _N, _W = NovEBConfig(), WorldSettings()
 
@@ -35,6 +35,7 @@ def _prob(text: str) -> float:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from babblegen.descriptors import DESCRIPTORS
     from babblegen.explorers import EXPLORERS
     from babblegen.tasks import DEFAULT_TASK, TASKS
 
@@ -59,7 +60,7 @@ def build_parser() -> argparse.ArgumentParser:
             "then --config, then the flags. Safe to interrupt (Ctrl-C / SIGTERM): the dataset is finalized and "
             "--resume continues from the last commit point, even after a kill."
         ),
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     g.add_argument("--out", required=True, type=Path, help="dataset directory (must be new or empty)")
     g.add_argument("--resume", action="store_true", help="continue the interrupted run in --out")
@@ -72,7 +73,14 @@ def build_parser() -> argparse.ArgumentParser:
         "--max-attempts",
         type=_positive("--max-attempts"),
         default=None,
-        help="stop after this many attempted movements, rounded up to whole generations [default: all generations]",
+        help="stop after this many attempted movements (clones, children that repeat a tried genome, reuse its "
+        "outcome and do not count) [default: all generations]",
+    )
+    g.add_argument(
+        "--descriptor",
+        choices=sorted(DESCRIPTORS),
+        default=None,
+        help=f"behaviour descriptor of the outcome image [default: {RunConfig.descriptor}; phash is the paper's]",
     )
     g.add_argument(
         "--population", type=int, default=None, help=f"individuals per generation [default: {_N.population}]"
@@ -132,6 +140,7 @@ def _overrides(args: argparse.Namespace) -> dict:
         "explorer": args.explorer,
         "seed": args.seed,
         "max_attempts": args.max_attempts,
+        "descriptor": args.descriptor,
         "checkpoint_every": args.checkpoint_every,
         "workers": args.workers,
         "ray": args.ray,
@@ -183,6 +192,32 @@ def main(argv: list[str] | None = None) -> int:
     except ConfigError as e:
         print(f"babblegen: error: {e}", file=sys.stderr)
         return 2
+    except Exception as e:
+        full = _disk_full(e)
+        if full is None:
+            raise
+        where = getattr(args, "out", None) or "the output directory"
+        print(
+            f"babblegen: error: no space left on the device holding {where}; everything up to the last commit "
+            f"point is safe: free some space, then run the same command with --resume",
+            file=sys.stderr,
+        )
+        return 1
+
+
+def _disk_full(error: BaseException | None) -> BaseException | None:
+    """The out-of-space error behind ``error`` (itself, or what it was raised from), if there is one."""
+    import errno
+
+    seen = set()
+    while error is not None and id(error) not in seen:
+        seen.add(id(error))
+        if isinstance(error, OSError) and error.errno in (errno.ENOSPC, errno.EDQUOT):
+            return error
+        if "No space left on device" in str(error):  # libraries that wrap the OSError in their own type
+            return error
+        error = error.__cause__ or error.__context__
+    return None
 
 
 def entry_point() -> None:

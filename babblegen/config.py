@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from babblegen.explorers.noveb import NovEBConfig
-from babblegen.world.world import WorldSettings
+from babblegen.world.settings import WorldSettings
 
 
 class ConfigError(ValueError):
@@ -23,7 +23,7 @@ class RunConfig:
     explorer: str = "noveb"  # "noveb" or "random"
     seed: int = 0
     max_attempts: int | None = None  # stop after this many attempted movements (default: all generations)
-    descriptor: str = "phash"
+    descriptor: str = "phash16"  # 256-bit pHash of the full head image (the paper: 64-bit "phash")
     checkpoint_every: int = 10  # generations between commit points (crash-safe resume granularity)
     workers: int = 1
     ray: str | None = None  # None, "auto" or a cluster address
@@ -50,6 +50,19 @@ class RunConfig:
     @property
     def total_generations(self) -> int:
         return self.noveb.generations
+
+    def explorer_config(self) -> dict[str, Any]:
+        """The chosen explorer's options: NovEB's whole section; for random babbling, the batch size, number
+        of batches and novelty measurement, taken from the same section so the two runs compare."""
+        noveb = asdict(self.noveb)
+        if self.explorer == "noveb":
+            return noveb
+        shared = ("population", "generations", "k", "archive_per_generation", "archive_policy")
+        return {key: noveb[key] for key in shared}
+
+    def descriptor_config(self) -> dict[str, Any]:
+        """Keyword arguments of :func:`babblegen.descriptors.make_descriptor` for this run."""
+        return {"name": self.descriptor}
 
     def validate(self) -> None:
         """Raise ConfigError for values that cannot work, with the valid choices where there are some."""

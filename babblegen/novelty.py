@@ -14,6 +14,7 @@ __all__ = [
     "Archive",
     "ArchivePolicy",
     "MostNovel",
+    "MostNovelUnseen",
     "hamming",
     "k_smallest_distances",
     "make_archive_policy",
@@ -235,7 +236,31 @@ class MostNovel:
         return {"name": self.name, "per_generation": self.per_generation}
 
 
-ARCHIVE_POLICIES: dict[str, type] = {"most_novel": MostNovel}
+class MostNovelUnseen(MostNovel):
+    """The paper's policy, but an individual enters only if it adds novelty: the archive (and this
+    generation's picks) do not already hold its exact descriptor. Without this, an archive fed one entry per
+    generation fills with copies of the few most common outcomes (the untouched scene above all), which only
+    pull everyone's novelty towards zero."""
+
+    name = "most_novel_unseen"
+
+    def select(self, novelty: np.ndarray, descriptors: np.ndarray, archive: Archive) -> np.ndarray:
+        nov = np.asarray(novelty, dtype=np.float64)
+        codes = _as_codes(descriptors, "descriptors") if len(nov) else np.zeros((0, 1), np.uint64)
+        picked: list[int] = []
+        for i in np.argsort(-nov, kind="stable"):
+            if len(picked) == self.per_generation:
+                break
+            known = archive.descriptors if len(archive) else codes[:0]
+            if len(known) and hamming(codes[i], known).min() == 0:
+                continue
+            if picked and hamming(codes[i], codes[picked]).min() == 0:
+                continue
+            picked.append(int(i))
+        return np.asarray(picked, dtype=np.int64)
+
+
+ARCHIVE_POLICIES: dict[str, type] = {"most_novel": MostNovel, "most_novel_unseen": MostNovelUnseen}
 
 
 def make_archive_policy(name: str = "most_novel", **kwargs: Any) -> ArchivePolicy:

@@ -28,7 +28,7 @@ from babblegen.config import ConfigError, RunConfig
 from babblegen.evaluation import Evaluator
 from babblegen.scene import TaskSpec
 from babblegen.world.rollout import Command, Rollout
-from babblegen.world.world import WorldSettings
+from babblegen.world.settings import WorldSettings
 
 log = logging.getLogger(__name__)
 

@@ -4,16 +4,16 @@ Directory layout of a run (the LeRobot dataset root):
     meta/ data/ videos/          LeRobot v3.0 dataset (one executed trajectory = one episode)
     babblegen/run.json           configuration, package versions, task description
     babblegen/attempts.jsonl     one row per attempted movement (the sidecar table)
-    babblegen/checkpoint.pkl     the last commit point: explorer state, counters, dataset file record
+    babblegen/checkpoint.json    the last commit point: explorer state, counters, dataset file record
+    babblegen/checkpoint.prev.json   the commit point before it (the fallback if the last is damaged)
     babblegen/rerun/             Rerun recordings (when enabled)
 """
 
 from __future__ import annotations
 
 import importlib.metadata
-import math
+import json
 import os
-import pickle
 import platform
 import shutil
 import sys
@@ -25,16 +25,20 @@ from typing import Any
 import numpy as np
 
 from babblegen.config import ConfigError, RunConfig
+from babblegen.exporters.dataset_card import write_card
 from babblegen.exporters.lerobot import EpisodeWriter, atomic_write, features, rollback
 from babblegen.exporters.sidecar import (
     ATTEMPTS,
     CHECKPOINT,
+    CLONES,
+    PREVIOUS_CHECKPOINT,
     RUN_INFO,
     AttemptLog,
     read_run_info,
     sidecar_dir,
 )
 from babblegen.interrupts import Interrupted, Interrupts
+from babblegen.lock import DatasetLock
 from babblegen.world.rollout import Command, Rollout
 
 FORMAT_VERSION = 1
@@ -61,12 +65,14 @@ class RunSummary:
     generations: int
     seconds: float
     interrupted: bool = False
+    clones: int = 0
 
     def lines(self) -> list[str]:
         rate = self.attempts / self.seconds if self.seconds > 0 else 0.0
         return [
             f"{'interrupted' if self.interrupted else 'finished'}: {self.attempts} attempts, {self.executed} executed "
-            f"episodes, {self.contacts} with contact, archive {self.archive}, {self.generations} generations, "
+            f"episodes, {self.contacts} with contact, archive {self.archive}, {self.generations} generations "
+            f"({self.clones} clones of tried genomes reused, not simulated), "
             f"{self.seconds:.0f} s ({rate:.2f} attempts/s)",
             f"dataset: {self.out}",
         ]
@@ -119,10 +125,19 @@ class Run:
 
     def __init__(self, out: Path, config: RunConfig, resumed: bool):
         self.out, self.config, self.resumed = Path(out), config, resumed
-        self.counters = {"attempts": 0, "executed": 0, "contacts": 0, "generations": 0, "worker_failures": 0}
+        self.counters = {
+            "attempts": 0,
+            "executed": 0,
+            "contacts": 0,
+            "generations": 0,
+            "clones": 0,
+            "worker_failures": 0,
+        }
         self.writer: EpisodeWriter | None = None
         self.log: AttemptLog | None = None
+        self.clone_log: AttemptLog | None = None
         self.sinks: list[Any] = []
+        self.lock = DatasetLock(sidecar_dir(self.out))
 
     # --- construction -------------------------------------------------------------------------------------
     @classmethod
@@ -173,26 +188,13 @@ class Run:
             self.evaluator = LocalEvaluator(self.task, cfg.world, cfg.seed)
         kin_info = arm_info(self.task)
         self.joint_names = list(kin_info["joints"])
-        self.descriptor = make_descriptor(cfg.descriptor)
-        explorer_cfg = {f: getattr(cfg.noveb, f) for f in ("population", "generations", "k")}
-        if cfg.explorer == "noveb":
-            explorer_cfg = cfg.noveb
-        if cfg.max_attempts is not None:
-            gens = math.ceil(cfg.max_attempts / cfg.noveb.population)
-            explorer_cfg = (
-                {**explorer_cfg, "generations": gens}
-                if isinstance(explorer_cfg, dict)
-                else type(explorer_cfg)(**{**explorer_cfg.__dict__, "generations": gens})
-            )
+        self.descriptor = make_descriptor(**cfg.descriptor_config())
         self.explorer = make_explorer(
             cfg.explorer,
-            explorer_cfg,
+            cfg.explorer_config(),
             rng_seed=cfg.seed,
             joint_limits=np.asarray(kin_info["limits"]),
             start_norm=np.asarray(kin_info["start_norm"]),
-        )
-        self.total_generations = (
-            explorer_cfg["generations"] if isinstance(explorer_cfg, dict) else explorer_cfg.generations
         )
         self.task_text = f"{cfg.explorer} babbling in {cfg.task}"
         self.repo_id = f"babblegen/{self.out.name or 'dataset'}"
@@ -217,33 +219,69 @@ class Run:
             "object_names": self.task.object_names,
             "episode_task": self.task_text,
         }
-        import json
-
         atomic_write(sdir / RUN_INFO, json.dumps(info, indent=2, default=_json_default).encode())
         self.log = AttemptLog(sdir / ATTEMPTS)
+        self.clone_log = AttemptLog(sdir / CLONES)
 
     def _open_resumed(self) -> None:
         sdir = sidecar_dir(self.out)
-        ckpt_path = sdir / CHECKPOINT
-        if not ckpt_path.exists():
+        if not (sdir / CHECKPOINT).exists() and not (sdir / PREVIOUS_CHECKPOINT).exists():
+            if (sdir / "checkpoint.pkl").exists():
+                raise ConfigError(
+                    f"--resume: {self.out} was made by an older babblegen that stored its state as a pickle, "
+                    "which this version does not load (it could run code); start a new run"
+                )
             # died before its first commit point: nothing worth keeping, start the same run afresh
             keep = sdir / RUN_INFO
             data = keep.read_bytes()
             for p in self.out.iterdir():
                 shutil.rmtree(p) if p.is_dir() else p.unlink()
+            self.lock.release()
             self._open_new()
             atomic_write(keep, data)
+            self.lock.acquire(self.out)
             return
-        with open(ckpt_path, "rb") as f:
-            ckpt = pickle.load(f)
+        ckpt = self._read_checkpoint(sdir)
+        info = read_run_info(self.out)
+        if info["config"] != self.config.to_dict():  # extended: the stored config says what the run now is
+            info["config"] = self.config.to_dict()
+            info.setdefault("resumed", []).append({"at": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "command": sys.argv})
+            atomic_write(sdir / RUN_INFO, json.dumps(info, indent=2, default=_json_default).encode())
         rollback(self.out, ckpt["dataset"])
         AttemptLog.truncate(sdir / ATTEMPTS, ckpt["sidecar_offset"])
+        AttemptLog.truncate(sdir / CLONES, ckpt.get("clones_offset", 0))
         self.explorer.load_state_dict(ckpt["explorer"])
         self.counters.update(ckpt["counters"])
         self.writer = EpisodeWriter.reopen(self.out, read_run_info(self.out)["repo_id"])
         self.log = AttemptLog(sdir / ATTEMPTS)
+        self.clone_log = AttemptLog(sdir / CLONES)
         for sink in self.sinks:
             sink.rollback(self.counters["executed"])
+
+    def _read_checkpoint(self, sdir: Path) -> dict[str, Any]:
+        """The last commit point, or the one before it when the last is missing or damaged."""
+        from babblegen.exporters.state_file import StateFileError, loads
+
+        problems = []
+        for name in (CHECKPOINT, PREVIOUS_CHECKPOINT):
+            try:
+                ckpt = loads((sdir / name).read_bytes())
+                missing = {"explorer", "counters", "sidecar_offset", "dataset"} - set(ckpt)
+                if missing:
+                    raise StateFileError(f"missing {', '.join(sorted(missing))}")
+            except (OSError, StateFileError) as e:
+                problems.append(f"{name}: {e}")
+                continue
+            if problems:
+                print(
+                    f"babblegen: warning: {problems[0]}; resuming from the commit point before it",
+                    file=sys.stderr,
+                )
+            return ckpt
+        raise ConfigError(
+            f"--resume: the run state in {sdir} is damaged and there is no earlier commit point to fall back to "
+            f"({'; '.join(problems)}); the episodes written so far still load with LeRobot"
+        )
 
     def _commit(self, reopen: bool = True) -> None:
         record = self.writer.commit() if reopen else (self.writer.finalize() or _snapshot(self.out))
@@ -254,9 +292,17 @@ class Run:
             "explorer": self.explorer.state_dict(),
             "counters": dict(self.counters),
             "sidecar_offset": self.log.offset(),
+            "clones_offset": self.clone_log.offset(),
             "dataset": record,
         }
-        atomic_write(sidecar_dir(self.out) / CHECKPOINT, pickle.dumps(state))
+        from babblegen.exporters.state_file import dumps
+
+        sdir = sidecar_dir(self.out)
+        data = dumps(state)
+        if (sdir / CHECKPOINT).exists():
+            os.replace(sdir / CHECKPOINT, sdir / PREVIOUS_CHECKPOINT)  # a crash here resumes from this one
+        atomic_write(sdir / CHECKPOINT, data)
+        write_card(self.out, read_run_info(self.out), self.counters)
 
     def _row(self, cand, rollout: Rollout, code, evaluation, episode: int | None, seconds: dict) -> dict:
         names = self.task.object_names
@@ -301,22 +347,30 @@ class Run:
     def execute(self, progress: bool = True, echo=print) -> RunSummary:
         """Run to completion or interruption. The dataset is finalized and loads either way."""
         t0 = time.perf_counter()
+        if self.resumed:
+            self.lock.acquire(self.out)  # before anything is rolled back: another run may be writing
         self._setup()
         if self.config.rerun:
             from babblegen.exporters.rerun_log import RerunSink
 
             self.sinks.append(RerunSink(self.out, self.task, self.joint_names))
-        if self.resumed:
-            self._open_resumed()
-        else:
-            self._open_new()
+        try:
+            if self.resumed:
+                self._open_resumed()
+            else:
+                self._open_new()
+                self.lock.acquire(self.out)
+        except BaseException:
+            self.evaluator.close()
+            self.lock.release()
+            raise
         if self.resumed:
             echo(
                 f"resuming {self.out} at generation {self.counters['generations']} "
                 f"({self.counters['attempts']} attempts, {self.counters['executed']} episodes)"
             )
         interrupted = False
-        bar = _progress(progress, self.total_generations * self.config.noveb.population, self.counters["attempts"])
+        bar = self._progress_bar(progress)
         with Interrupts() as self._interrupts:
             try:
                 self._loop(bar)
@@ -333,9 +387,11 @@ class Run:
                         self.writer.finalize()
                     for sink in self.sinks:
                         sink.close()
-                    if self.log is not None:
-                        self.log.close()
+                    for log in (self.log, self.clone_log):
+                        if log is not None:
+                            log.close()
                     self.evaluator.close()
+                    self.lock.release()
         return RunSummary(
             self.out,
             self.counters["attempts"],
@@ -345,17 +401,27 @@ class Run:
             self.counters["generations"],
             time.perf_counter() - t0,
             interrupted,
+            self.counters["clones"],
         )
 
+    def _finished(self) -> bool:
+        """The run's stopping rule: all generations told, or ``max_attempts`` movements attempted. Clones
+        (children repeating a genome already tried) are not attempts."""
+        cfg = self.config
+        if self.explorer.generation >= cfg.noveb.generations:
+            return True
+        return cfg.max_attempts is not None and self.explorer.attempts_asked >= cfg.max_attempts
+
     def _submit(self):
-        cands = self.explorer.ask()
+        left = None if self.config.max_attempts is None else self.config.max_attempts - self.explorer.attempts_asked
+        cands = self.explorer.ask(max_new=left)
         self.evaluator.submit([command_for(c) for c in cands], [c.index for c in cands])
         return cands
 
     def _loop(self, bar) -> None:
         """Generations, pipelined: the next generation is submitted before this one's episodes are written,
         so workers simulate while the (single) writer writes."""
-        if self.explorer.done:
+        if self._finished() and not self.explorer.batch_open:
             return
         cands = self._submit()
         while True:
@@ -368,14 +434,31 @@ class Run:
                 codes.append(self.descriptor(r.after_image) if r.feasible else None)
                 t_desc.append(time.perf_counter() - t)
             evaluations = self.explorer.tell(cands, codes)
-            next_cands = None if self.explorer.done else self._submit()
+            clones = self.explorer.last_clones
+            next_cands = None if self._finished() else self._submit()
             self._write_generation(cands, rollouts, codes, evaluations, t_desc, t_wait, bar)
+            with self._interrupts.protected():
+                for clone in clones:
+                    self.clone_log.append(clone_row(clone))
+                self.counters["clones"] += len(clones)
             if self.counters["generations"] % self.config.checkpoint_every == 0:
                 with self._interrupts.protected():
                     self._commit()
             if next_cands is None:
                 return
             cands = next_cands
+
+    def _progress_bar(self, enabled: bool):
+        """Counts attempts when ``max_attempts`` bounds the run, generations otherwise."""
+        if not enabled:
+            return None
+        from tqdm import tqdm
+
+        if self.config.max_attempts is not None:
+            total, initial, unit = self.config.max_attempts, self.counters["attempts"], "attempt"
+        else:
+            total, initial, unit = self.config.noveb.generations, self.counters["generations"], "gen"
+        return tqdm(total=total, initial=initial, unit=unit, dynamic_ncols=True, smoothing=0.05)
 
     def _write_generation(self, cands, rollouts, codes, evaluations, t_desc, t_wait, bar) -> None:
         for cand, r, code, ev, td in zip(cands, rollouts, codes, evaluations, t_desc, strict=True):
@@ -397,24 +480,32 @@ class Run:
                 for sink in self.sinks:
                     sink.log(row, r)
                 self.counters["attempts"] += 1
-                if bar is not None:
+                if bar is not None and self.config.max_attempts is not None:
                     bar.update(1)
         self.counters["generations"] += 1
         if bar is not None:
+            if self.config.max_attempts is None:
+                bar.update(1)
             bar.set_postfix(
-                executed=self.counters["executed"],
+                attempts=self.counters["attempts"],
+                episodes=self.counters["executed"],
+                contact=self.counters["contacts"],
                 archive=self.explorer.archive_size,
-                contacts=self.counters["contacts"],
                 refresh=False,
             )
 
 
-def _progress(enabled: bool, total: int, initial: int):
-    if not enabled:
-        return None
-    from tqdm import tqdm
-
-    return tqdm(total=total, initial=initial, unit="attempt", dynamic_ncols=True, smoothing=0.05)
+def clone_row(clone) -> dict[str, Any]:
+    """A sidecar row for a child that reused an earlier attempt's outcome (``DIR/babblegen/clones.jsonl``)."""
+    return {
+        "generation": clone.generation,
+        "kind": clone.kind,
+        "genome": np.asarray(clone.genome).tolist(),
+        "parent": clone.parent,
+        "source": clone.source,
+        "novelty": clone.novelty,
+        "survived": clone.survived,
+    }
 
 
 def _snapshot(root: Path) -> dict:

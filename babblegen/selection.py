@@ -69,11 +69,12 @@ def crowding_distance(objectives: np.ndarray, rank: np.ndarray) -> np.ndarray:
     return crowd
 
 
-def nsga2_select(objectives: np.ndarray, n_keep: int) -> np.ndarray:
-    """Indices of the ``n_keep`` survivors: best fronts first, then larger crowding, then lower index.
+def nsga2_select(objectives: np.ndarray, n_keep: int, tie_order: np.ndarray | None = None) -> np.ndarray:
+    """Indices of the ``n_keep`` survivors: best fronts first, then larger crowding, then lower ``tie_order``
+    (by default the index).
 
-    With a single objective this is elitist truncation: the ``n_keep`` largest values, ties to lower indices.
-    The result is ordered by that same key.
+    With a single objective this is elitist truncation: the ``n_keep`` largest values, ties to lower
+    ``tie_order``. The result is ordered by that same key.
     """
     f = _as_objectives(objectives)
     n = f.shape[0]
@@ -81,7 +82,10 @@ def nsga2_select(objectives: np.ndarray, n_keep: int) -> np.ndarray:
         raise ValueError(f"n_keep must be in [0, {n}], got {n_keep}")
     rank = non_dominated_sort(f)
     crowd = crowding_distance(f, rank)  # one objective: a front is a set of ties, equal crowding
-    order = np.lexsort((np.arange(n), -crowd, rank))
+    ties = np.arange(n) if tie_order is None else np.asarray(tie_order)
+    if ties.shape != (n,):
+        raise ValueError(f"tie_order must have shape ({n},), got {ties.shape}")
+    order = np.lexsort((ties, -crowd, rank))
     return order[:n_keep]
 
 

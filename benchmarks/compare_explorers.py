@@ -1,121 +1,154 @@
-"""NovEB against random motor babbling over the same number of attempted movements (the paper's Fig. 4).
+"""NovEB against random motor babbling over the same number of attempted movements (the paper's Fig. 4), and
+the behaviour-descriptor variants the default was chosen from.
 
 Runs the real explorer -> world -> descriptor loop (no LeRobot encoding, which does not change what is
-explored) for each explorer and seed, and reports contacts per attempt, per object, and how widely the
-objects' final positions spread. Per-attempt rows go to OUT/<explorer>-<seed>.jsonl.
+explored) for each explorer and seed, stopping after ``--attempts`` attempted movements (clones, children
+repeating a tried genome, reuse its outcome and are not attempts), and reports the dataset measures of
+``babblegen report``: distinct genomes executed, duplicate episodes, distinct genomes touching each object,
+the moved objects' final positions in 2 cm cells, and the share of executed attempts with novelty > 0.
+Per-attempt rows (sidecar layout) go to OUT/<label>.jsonl.
 
-    python benchmarks/compare_explorers.py --attempts 2000 --seeds 0 1 2 --jobs 2 --out runs/compare
+    python benchmarks/compare_explorers.py --attempts 1200 --seeds 0 1 2 --jobs 2 --out runs/compare
+    python benchmarks/compare_explorers.py --explorers noveb --descriptor phash --crop none --out runs/full-frame
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import math
 import time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 
-def run_one(explorer_name: str, seed: int, attempts: int, out: str) -> dict:
+def run_one(explorer_name: str, seed: int, attempts: int, out: str, options: dict[str, Any]) -> dict:
     from babblegen.config import RunConfig
     from babblegen.descriptors import make_descriptor
     from babblegen.evaluation import LocalEvaluator
     from babblegen.explorers import make_explorer
+    from babblegen.exporters.report import diversity
     from babblegen.run import command_for
     from babblegen.tasks import get_task
+    from babblegen.world.world import WorldSettings
 
     cfg = RunConfig(explorer=explorer_name, seed=seed)
     task = get_task(cfg.task)
-    ev = LocalEvaluator(task, cfg.world, seed)
+    world = WorldSettings(**{**cfg.world.to_dict(), **options.get("world", {})})
+    ev = LocalEvaluator(task, world, seed)
     w = ev.world
-    gens = math.ceil(attempts / cfg.noveb.population)
-    ecfg = (
-        {**cfg.noveb.__dict__, "generations": gens}
-        if explorer_name == "noveb"
-        else {"population": cfg.noveb.population, "generations": gens, "k": cfg.noveb.k}
-    )
+    ecfg = {**cfg.explorer_config(), **options.get("explorer", {})}
+    if explorer_name != "noveb":
+        ecfg.pop("reuse_clones", None)
     ex = make_explorer(explorer_name, ecfg, rng_seed=seed, joint_limits=w.kin.limits, start_norm=w.start_norm)
-    desc = make_descriptor("phash")
+    desc = make_descriptor(**{**cfg.descriptor_config(), **options.get("descriptor", {})})
     names = task.object_names
-    path = Path(out) / f"{explorer_name}-{seed}.jsonl"
-    t0 = time.perf_counter()
+    label = f"{options.get('label', explorer_name)}-{seed}"
+    path = Path(out) / f"{label}.jsonl"
+    t0, clones = time.perf_counter(), 0
     with open(path, "w") as f:
-        while not ex.done:
-            cands = ex.ask()
+        while ex.attempts_asked < attempts and ex.generation < 10**9:
+            cands = ex.ask(max_new=attempts - ex.attempts_asked)
             rollouts = ev.evaluate([command_for(c) for c in cands], [c.index for c in cands])
             codes = [desc(r.after_image) if r.feasible else None for r in rollouts]
             evals = ex.tell(cands, codes)
-            for c, r, e in zip(cands, rollouts, evals, strict=True):
-                row = {"attempt": c.index, "feasible": r.feasible, "reason": r.reason, "novelty": e.novelty}
+            clones += len(ex.last_clones)
+            for c, r, e, code in zip(cands, rollouts, evals, codes, strict=True):
+                row = {
+                    "attempt": c.index,
+                    "generation": c.generation,
+                    "kind": c.kind,
+                    "genome": np.asarray(c.genome).tolist(),
+                    "feasible": r.feasible,
+                    "reason": r.reason,
+                    "novelty": e.novelty,
+                    "archived": e.archived,
+                }
                 if r.feasible:
+                    row["descriptor"] = desc.hex(code) if hasattr(desc, "hex") else None
                     row["touched"] = dict(zip(names, map(bool, r.touched), strict=True))
-                    row["final_xy"] = dict(zip(names, np.round(r.final_poses[:, :2], 4).tolist(), strict=True))
+                    row["displacement"] = dict(zip(names, np.round(r.displacement, 6).tolist(), strict=True))
+                    row["final_poses"] = dict(zip(names, np.round(r.final_poses, 6).tolist(), strict=True))
                 f.write(json.dumps(row) + "\n")
     ev.close()
-    return summarise(path, names) | {"explorer": explorer_name, "seed": seed, "seconds": time.perf_counter() - t0}
-
-
-def summarise(path: Path, names: list[str], limit: int | None = None) -> dict:
-    rows = [json.loads(line) for line in path.read_text().splitlines()][:limit]
-    ex = [r for r in rows if r["feasible"]]
-    contacts = sum(any(r["touched"].values()) for r in ex)
-    per_object = {n: sum(r["touched"][n] for r in ex) for n in names}
-    cells = {n: len({tuple(np.floor(np.array(r["final_xy"][n]) / 0.02).astype(int)) for r in ex}) for n in names}
+    rows = [json.loads(line) for line in path.read_text().splitlines()]
     return {
+        "label": label,
+        "explorer": explorer_name,
+        "seed": seed,
         "attempts": len(rows),
-        "executed": len(ex),
-        "contacts": contacts,
-        "contacts_per_attempt": contacts / len(rows),
-        "per_object": per_object,
-        "occupied_2cm_cells": cells,
+        "executed": sum(bool(r["feasible"]) for r in rows),
+        "contacts": sum(any((r.get("touched") or {}).values()) for r in rows),
+        "clones": clones,
+        "seconds": time.perf_counter() - t0,
+        **diversity(rows, names),
     }
 
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--attempts", type=int, default=2000)
+    p.add_argument("--attempts", type=int, default=1200)
     p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
+    p.add_argument("--explorers", nargs="+", default=["noveb", "random"], choices=["noveb", "random"])
     p.add_argument("--jobs", type=int, default=2)
     p.add_argument("--out", default="runs/compare")
+    p.add_argument("--label", default=None, help="name prefix of the rows files (default: the explorer)")
+    p.add_argument("--descriptor", default=None, help="descriptor name (default: the run default)")
+    p.add_argument("--hash-size", type=int, default=None)
+    p.add_argument("--crop", default=None, help="x0,y0,x1,y1 fractions, or 'none' for the full frame")
+    p.add_argument("--camera", type=int, default=None, help="square camera resolution in pixels")
+    p.add_argument("--literal", action="store_true", help="the paper's literal procedure (clones re-simulated)")
     p.add_argument(
-        "--summarise",
-        type=int,
-        metavar="N",
-        default=None,
-        help="do not run: summarise the first N attempts of every run already in --out (runs still in progress too)",
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="an explorer option, e.g. tie_break=oldest or reuse_clones=false (repeatable)",
     )
     args = p.parse_args()
+    options: dict[str, Any] = {"descriptor": {}, "world": {}, "explorer": {}}
+    if args.descriptor:
+        options["descriptor"]["name"] = args.descriptor
+    if args.hash_size:
+        options["descriptor"]["hash_size"] = args.hash_size
+    if args.crop:
+        options["descriptor"]["crop"] = None if args.crop == "none" else [float(v) for v in args.crop.split(",")]
+    if args.camera:
+        options["world"] = {"camera_width": args.camera, "camera_height": args.camera}
+    if args.literal:
+        options["explorer"] = {"reuse_clones": False, "tie_break": "oldest", "archive_policy": "most_novel"}
+    for item in args.set:
+        key, _, value = item.partition("=")
+        options["explorer"][key] = json.loads(value) if value in ("true", "false") or value[:1].isdigit() else value
     Path(args.out).mkdir(parents=True, exist_ok=True)
-    jobs = [(e, s) for s in args.seeds for e in ("noveb", "random")]
-    if args.summarise:
-        from babblegen.tasks import get_task
-
-        names = get_task("noveb_tabletop").object_names
-        results = [
-            summarise(Path(args.out) / f"{e}-{s}.jsonl", names, args.summarise) | {"explorer": e, "seed": s}
-            for e, s in jobs
-        ]
-    else:
-        with ProcessPoolExecutor(args.jobs) as pool:
-            results = list(
-                pool.map(run_one, *zip(*jobs, strict=True), [args.attempts] * len(jobs), [args.out] * len(jobs))
-            )
-    (Path(args.out) / "summary.json").write_text(json.dumps(results, indent=2))
-    print(f"{'explorer':>8} {'seed':>4} {'attempts':>8} {'executed':>8} {'contacts':>8} {'per att.':>8}  per object")
+    jobs = [(e, s) for s in args.seeds for e in args.explorers]
+    with ProcessPoolExecutor(args.jobs) as pool:
+        futures = []
+        for e, s in jobs:
+            opts = {**options, "label": f"{args.label}-{e}" if args.label else e}
+            futures.append(pool.submit(run_one, e, s, args.attempts, args.out, opts))
+        results = [f.result() for f in futures]
+    (Path(args.out) / f"summary-{args.label or 'compare'}.json").write_text(json.dumps(results, indent=2))
+    keys = (
+        "attempts",
+        "executed",
+        "clones",
+        "duplicate_episodes",
+        "contacts",
+        "touching_genomes",
+        "moved_cells",
+        "novelty_positive_share",
+    )
+    print(f"{'run':>24} " + " ".join(f"{k[:12]:>12}" for k in keys))
     for r in results:
-        print(
-            f"{r['explorer']:>8} {r['seed']:>4} {r['attempts']:>8} {r['executed']:>8} {r['contacts']:>8} "
-            f"{r['contacts_per_attempt']:>8.3f}  {r['per_object']}  cells {r['occupied_2cm_cells']}"
-        )
-    for e in ("noveb", "random"):
-        c = [r["contacts_per_attempt"] for r in results if r["explorer"] == e]
-        print(f"{e}: contacts per attempt {np.mean(c):.3f} +- {np.std(c):.3f} over {len(c)} seeds")
-    nov = np.mean([r["contacts"] for r in results if r["explorer"] == "noveb"])
-    ran = np.mean([r["contacts"] for r in results if r["explorer"] == "random"])
-    print(f"ratio NovEB / random contacts: {nov / max(ran, 1e-9):.1f}")
+        print(f"{r['label']:>24} " + " ".join(f"{r[k]:>12.3g}" if r[k] is not None else "n/a" for k in keys))
+    for e in args.explorers:
+        sub = [r for r in results if r["explorer"] == e]
+        for k in ("touching_genomes", "moved_cells"):
+            v = [r[k] for r in sub]
+            print(f"{e}: {k} {np.mean(v):.1f} +- {np.std(v):.1f} over {len(v)} seeds")
 
 
 if __name__ == "__main__":

@@ -8,9 +8,11 @@ Per episode, the input is the `action` column (commanded joint positions) resamp
 (optionally with the tool path `observation.ee_pos`); the targets come from `observation.environment_state`:
 last frame minus first frame, (dx, dy) per object, and "moved" = displaced more than --moved-threshold metres.
 
-Each repeat holds out the same number of episodes from both datasets as one common test set, trains one model
-on N NovEB episodes and one on N random episodes (N equal, the rest of each dataset or --n), and evaluates both
-on that test set, next to the trivial baseline "nothing moves". Deterministic for a given --seed: CPU, one
+Each repeat holds out about the same number of episodes from both datasets as one common test set, trains one
+model on N NovEB episodes and one on N random episodes (N equal, the rest of each dataset or --n), and
+evaluates both on that test set, next to the trivial baseline "nothing moves". The split is by genome (read
+from the sidecar, DIR/babblegen/attempts.jsonl): every episode of one commanded movement lands on the same side,
+so a model is never tested on a movement it was trained on. Deterministic for a given --seed: CPU, one
 thread, seeded splits and initialisation.
 """
 
@@ -40,6 +42,7 @@ class Episodes:
     disp: np.ndarray  # (E, n_objects, 2) final minus first object position, metres
     moved: np.ndarray  # (E, n_objects) bool
     object_names: list[str]
+    genome: np.ndarray  # (E,) int: episodes with equal values executed the same genome
 
 
 def resample(seq: np.ndarray, steps: int) -> np.ndarray:
@@ -69,7 +72,19 @@ def load_episodes(root: Path, source: str, steps: int, with_ee: bool, threshold:
         raise SystemExit(f"{root} holds no episodes")
     disp = np.stack(disps)
     moved = np.linalg.norm(disp, axis=2) > threshold
-    return Episodes(source, np.stack(xs), disp, moved, objects)
+    return Episodes(source, np.stack(xs), disp, moved, objects, genome_groups(root, np.unique(episode)))
+
+
+def genome_groups(root: Path, episodes: np.ndarray) -> np.ndarray:
+    """For each episode index, a group id shared by all episodes that executed the same genome (sidecar)."""
+    by_episode: dict[int, str] = {}
+    with open(root / "babblegen" / "attempts.jsonl") as f:
+        for line in f:
+            row = json.loads(line)
+            if row.get("episode_index") is not None:
+                by_episode[int(row["episode_index"])] = f"{row.get('kind')}:{json.dumps(row['genome'])}"
+    ids: dict[str, int] = {}
+    return np.array([ids.setdefault(by_episode[int(e)], len(ids)) for e in episodes])
 
 
 class WorldModel(nn.Module):
@@ -144,9 +159,17 @@ def scores(
     }
 
 
-def split(n: int, n_test: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-    order = rng.permutation(n)
-    return order[n_test:], order[:n_test]
+def split(groups: np.ndarray, n_test: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """(train, test) episode indices: whole genome groups, in random order, go to the test set until it holds
+    at least ``n_test`` episodes; no group is on both sides."""
+    test: list[int] = []
+    for g in rng.permutation(np.unique(groups)):
+        if len(test) >= n_test:
+            break
+        test.extend(np.flatnonzero(groups == g).tolist())
+    test_set = set(test)
+    train = [i for i in rng.permutation(len(groups)).tolist() if i not in test_set]
+    return np.asarray(train, dtype=int), np.asarray(test, dtype=int)
 
 
 def main() -> None:
@@ -177,13 +200,17 @@ def main() -> None:
     n_small = min(len(d.x) for d in data.values())
     n_test = max(1, round(args.test_fraction * n_small))
     n_train = n_small - n_test if args.n is None else min(args.n, n_small - n_test)
+    n_train -= max(len(d.genome) - len(np.unique(d.genome)) for d in data.values())  # room for group overshoot
     if n_train < 2:
         raise SystemExit(f"too few episodes: {n_small} in the smaller dataset")
 
     for name, d in data.items():
         frac = d.moved.any(axis=1).mean()
         per_obj = ", ".join(f"{o} {m:.0%}" for o, m in zip(objects, d.moved.mean(axis=0), strict=True))
-        print(f"{name:7s} {len(d.x):4d} episodes; something moves in {frac:.0%} ({per_obj})")
+        print(
+            f"{name:7s} {len(d.x):4d} episodes of {len(np.unique(d.genome))} distinct genomes; something moves in "
+            f"{frac:.0%} ({per_obj})"
+        )
     print(
         f"per repeat: test = {n_test} + {n_test} held-out episodes (NovEB + random), train = {n_train} episodes "
         f"per model; input {args.steps} x {data['noveb'].x.shape[2]}, {args.epochs} epochs, {args.repeats} repeats"
@@ -193,9 +220,9 @@ def main() -> None:
     rows: dict[str, list[dict[str, float]]] = {"nothing moves": [], **{label: [] for label in labels.values()}}
     for r in range(args.repeats):
         rng = np.random.default_rng(args.seed + r)
-        parts = {name: split(len(d.x), n_test, rng) for name, d in data.items()}
+        parts = {name: split(d.genome, n_test, rng) for name, d in data.items()}
         test = {key: np.concatenate([getattr(d, key)[parts[n][1]] for n, d in data.items()]) for key in _KEYS}
-        test["source"] = np.repeat(list(data), n_test)
+        test["source"] = np.repeat(list(data), [len(parts[n][1]) for n in data])
         truth = (test["disp"], test["moved"], test["source"])
         rows["nothing moves"].append(scores(np.zeros_like(test["disp"]), np.zeros_like(test["moved"]), *truth))
         train_idx = {name: parts[name][0][:n_train] for name in data}

@@ -49,6 +49,12 @@ def features(joint_names: list[str], object_names: list[str], height: int, width
     }
 
 
+def datasets_progress_bars_off() -> None:
+    import datasets
+
+    datasets.disable_progress_bars()
+
+
 def _import_lerobot():
     os.environ.setdefault("HF_HUB_OFFLINE", "1")
     os.environ.setdefault("SVT_LOG", "1")  # SVT-AV1: errors only
@@ -103,6 +109,9 @@ class EpisodeWriter:
                     "task": task,
                 }
             )
+        # LeRobot's SuppressProgressBars (used when it loads metadata) turns the `datasets` bars back on when it
+        # exits, and save_episode would then print a "Map" bar per episode
+        datasets_progress_bars_off()
         self.ds.save_episode()
         return index
 
@@ -115,7 +124,7 @@ class EpisodeWriter:
         """Finalize, describe the committed state, and reopen for appending. Returns the commit record."""
         self.finalize()
         record = snapshot(self.root)
-        self.ds = _import_lerobot().resume(self.repo_id, root=self.root)
+        self.ds = _import_lerobot().resume(self.repo_id, root=self.root, **STREAMING)
         return record
 
 

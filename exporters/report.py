@@ -21,9 +21,10 @@ from typing import Any
 
 import numpy as np
 
-from .sidecar import read_attempts, read_run_info
+from .sidecar import CLONES, read_attempts, read_run_info
 
 CELL = 0.02  # metres: the grid of the spread measure
+OUTCOME_GRID = 0.01  # metres: two outcomes differ when some object's final xy falls in another 1 cm cell
 FIGURES = {
     "fig2": "fig2_final_tool_positions.png",
     "fig3": "fig3_final_object_positions.png",
@@ -45,6 +46,7 @@ class Run:
         self.object_names: list[str] = [o["name"] for o in self.task["objects"]]
         self.colors = {o["name"]: tuple(o["color"][:3]) for o in self.task["objects"]}
         self.executed = [r for r in self.rows if r.get("feasible")]
+        self.clones = read_attempts(self.root, CLONES)
 
     @property
     def explorer(self) -> str:
@@ -89,6 +91,57 @@ def _wall_time(rows: list[dict[str, Any]]) -> float:
     return total
 
 
+def _genome_key(row: dict[str, Any]) -> str:
+    return f"{row.get('kind', '')}:{json.dumps(row.get('genome'))}"
+
+
+def diversity(rows: list[dict[str, Any]], object_names: list[str]) -> dict[str, Any]:
+    """How many distinct interactions a run's rows hold, the measures a dataset is worth judging by.
+
+    ``duplicate_episodes``: executed rows whose genome was executed before. ``touching_genomes``: distinct
+    genomes whose movement touched any object (per object in ``touching_genomes_per_object``). ``moved_cells``:
+    distinct (object, 2 cm cell) pairs of the final positions of objects displaced by more than 1 cm.
+    ``novelty_positive_share``: executed rows with novelty > 0. ``distinct_outcomes``: distinct final layouts
+    (every object's final xy on a 1 cm grid), beside ``distinct_descriptors``, how many the descriptor told apart.
+    """
+    executed = [r for r in rows if r.get("feasible")]
+    seen: set[str] = set()
+    duplicates = 0
+    touching: dict[str, set[str]] = {name: set() for name in object_names}
+    cells: dict[str, set[tuple[int, int]]] = {name: set() for name in object_names}
+    for r in executed:
+        key = _genome_key(r)
+        duplicates += key in seen
+        seen.add(key)
+        touched = r.get("touched") or {}
+        displacement = r.get("displacement") or {}
+        final = r.get("final_poses") or {}
+        for name in object_names:
+            if touched.get(name):
+                touching[name].add(key)
+            if float(displacement.get(name, 0.0)) > CELL / 2 and name in final:
+                x, y = final[name][:2]
+                cells[name].add((math.floor(x / CELL), math.floor(y / CELL)))
+    positive = sum(float(r.get("novelty") or 0.0) > 0 for r in executed)
+    outcomes = {
+        tuple(math.floor(v / OUTCOME_GRID) for name in object_names for v in r["final_poses"][name][:2])
+        for r in executed
+        if set(object_names) <= set(r.get("final_poses") or {})
+    }
+    descriptors = {r["descriptor"] for r in executed if r.get("descriptor")}
+    return {
+        "distinct_genomes_executed": len(seen),
+        "duplicate_episodes": duplicates,
+        "touching_genomes": len(set().union(*touching.values())),
+        "touching_genomes_per_object": {name: len(v) for name, v in touching.items()},
+        "moved_cells": sum(len(v) for v in cells.values()),
+        "moved_cells_per_object": {name: len(v) for name, v in cells.items()},
+        "novelty_positive_share": positive / len(executed) if executed else None,
+        "distinct_outcomes": len(outcomes),
+        "distinct_descriptors": len(descriptors) if descriptors else None,
+    }
+
+
 def summarize(run: Run) -> dict[str, Any]:
     """The summary numbers of one run."""
     rows, executed = run.rows, run.executed
@@ -123,6 +176,8 @@ def summarize(run: Run) -> dict[str, Any]:
         "wall_time_s": _wall_time(rows),
         "rollout_time_s": sum(float((r.get("timings") or {}).get("total", 0.0)) for r in rows),  # all workers
         "infeasible_reasons": dict(sorted(reasons.items(), key=lambda kv: -kv[1])),
+        "clones": len(run.clones),
+        **diversity(rows, run.object_names),
     }
 
 
@@ -135,6 +190,8 @@ def compare(this: dict[str, Any], other: dict[str, Any]) -> dict[str, Any]:
     return {
         "contact_ratio": _ratio(this["contacts"], other["contacts"]),
         "contact_rate_ratio": _ratio(this["contacts_per_attempt"], other["contacts_per_attempt"]),
+        "touching_genomes_ratio": _ratio(this.get("touching_genomes"), other.get("touching_genomes")),
+        "moved_cells_ratio": _ratio(this.get("moved_cells"), other.get("moved_cells")),
         "contact_ratio_per_object": {
             k: _ratio(v, other["contacts_per_object"].get(k)) for k, v in this["contacts_per_object"].items()
         },
@@ -306,6 +363,19 @@ def markdown(summaries: list[dict[str, Any]], labels: list[str], comparison: dic
     body += row("feasible fraction", [s["feasible_fraction"] for s in summaries])
     body += row("contacts (executed movements touching any object)", [s["contacts"] for s in summaries])
     body += row("contacts per attempt", [s["contacts_per_attempt"] for s in summaries])
+    body += row("clones (children repeating a tried genome; not simulated)", [s.get("clones") for s in summaries])
+    body += row("distinct genomes executed", [s.get("distinct_genomes_executed") for s in summaries])
+    body += row("duplicate episodes (genome executed before)", [s.get("duplicate_episodes") for s in summaries])
+    body += row("distinct genomes touching any object", [s.get("touching_genomes") for s in summaries])
+    for name in objects:
+        body += row(
+            f"distinct genomes touching {name}",
+            [s.get("touching_genomes_per_object", {}).get(name) for s in summaries],
+        )
+    body += row("moved objects' final positions: occupied 2 cm cells", [s.get("moved_cells") for s in summaries])
+    body += row("executed attempts with novelty > 0", [s.get("novelty_positive_share") for s in summaries])
+    body += row("distinct outcomes (final layouts, 1 cm grid)", [s.get("distinct_outcomes") for s in summaries])
+    body += row("distinct behaviour descriptors", [s.get("distinct_descriptors") for s in summaries])
     for name in objects:
         body += row(f"contacts with {name}", [s["contacts_per_object"].get(name) for s in summaries])
     for name in objects:
@@ -340,6 +410,8 @@ def markdown(summaries: list[dict[str, Any]], labels: list[str], comparison: dic
         text += "\n## Against the comparison run\n\n"
         text += f"- contact ratio (contacts / comparison's contacts): {_fmt(comparison['contact_ratio'], 2)}\n"
         text += f"- contact rate ratio (per attempt): {_fmt(comparison['contact_rate_ratio'], 2)}\n"
+        text += f"- distinct touching genomes ratio: {_fmt(comparison['touching_genomes_ratio'], 2)}\n"
+        text += f"- moved objects' 2 cm cells ratio: {_fmt(comparison['moved_cells_ratio'], 2)}\n"
         for name, v in comparison["contact_ratio_per_object"].items():
             text += f"- {name}: {_fmt(v, 2)}\n"
     text += "\n## Figures\n\n" + "".join(f"![{k}]({v})\n" for k, v in FIGURES.items())

@@ -676,13 +676,32 @@ def new_recording(recording_id: str):
 
 
 def blueprint(timeline: str = "index"):
-    """3D scene, head camera and the overview of final positions; contacts and per-attempt plots."""
+    """3D scene, head camera and the overview of final positions, with plots that have data on ``timeline``:
+    one episode (``frame_index``) gets its contacts and joint state, many also the per-attempt plots."""
     import rerun.blueprint as rrb
 
     so_far = [
         rrb.VisibleTimeRange(tl, start=rrb.TimeRangeBoundary.infinite(), end=rrb.TimeRangeBoundary.cursor_relative())
         for tl in ("attempt", "episode_index", "index")
     ]
+    if timeline == "frame_index":  # one episode: every plot has data on the frame timeline
+        plots = rrb.Vertical(
+            rrb.TimeSeriesView(origin="contacts", name="Contacts per frame"),
+            rrb.TimeSeriesView(origin="state", name="Joint state"),
+        )
+    else:  # per-attempt series live on the attempt, episode and index timelines
+        plots = rrb.Vertical(
+            rrb.TimeSeriesView(origin="contacts", name="Contacts per frame"),
+            rrb.TimeSeriesView(origin="attempts/contacts", name="Accumulated contacts"),
+            rrb.Tabs(
+                rrb.TimeSeriesView(
+                    origin="attempts",
+                    contents=["attempts/novelty", "attempts/archived", "attempts/feasible"],
+                    name="Per attempt",
+                ),
+                rrb.TimeSeriesView(origin="state", name="Joint state"),
+            ),
+        )
     return rrb.Blueprint(
         rrb.Horizontal(
             rrb.Spatial3DView(
@@ -703,18 +722,7 @@ def blueprint(timeline: str = "index"):
                     time_ranges=so_far,
                 ),
             ),
-            rrb.Vertical(
-                rrb.TimeSeriesView(origin="contacts", name="Contacts per frame"),
-                rrb.TimeSeriesView(origin="attempts/contacts", name="Accumulated contacts"),
-                rrb.Tabs(
-                    rrb.TimeSeriesView(
-                        origin="attempts",
-                        contents=["attempts/novelty", "attempts/archived", "attempts/feasible"],
-                        name="Per attempt",
-                    ),
-                    rrb.TimeSeriesView(origin="state", name="Joint state"),
-                ),
-            ),
+            plots,
             column_shares=[3, 2, 2],
         ),
         rrb.TimePanel(timeline=timeline),
@@ -751,6 +759,9 @@ class RerunSink:
     """
 
     def __init__(self, out_dir: Path, task: Any, joint_names: list[str]):
+        # the sink reports its own failures in one warning; the SDK's Rust logger would repeat them (a full disk
+        # gives three ERROR lines). RUST_LOG set by the user still wins.
+        os.environ.setdefault("RUST_LOG", "off")
         self.out = Path(out_dir)
         self.dir = sidecar_dir(self.out) / RERUN_DIR
         self.task = task if isinstance(task, dict) else task.to_dict()

@@ -14,8 +14,10 @@ from typing import Any
 
 SIDECAR_DIR = "babblegen"
 ATTEMPTS = "attempts.jsonl"
+CLONES = "clones.jsonl"  # children that repeated a genome already tried and reused its outcome
 RUN_INFO = "run.json"
-CHECKPOINT = "checkpoint.pkl"
+CHECKPOINT = "checkpoint.json"  # the last commit point (exporters.state_file format)
+PREVIOUS_CHECKPOINT = "checkpoint.prev.json"  # the one before: the fallback if the last is damaged
 
 
 def sidecar_dir(root: str | Path) -> Path:
@@ -46,14 +48,18 @@ class AttemptLog:
 
     @staticmethod
     def truncate(path: Path, offset: int) -> None:
-        with open(path, "r+b") as f:
+        with open(path, "a+b") as f:
             f.truncate(offset)
 
 
-def read_attempts(root: str | Path) -> list[dict[str, Any]]:
-    """All complete rows of a dataset's sidecar table (a torn last line is ignored)."""
+def read_attempts(root: str | Path, table: str = ATTEMPTS) -> list[dict[str, Any]]:
+    """All complete rows of a dataset's sidecar table (a torn last line is ignored); ``table=CLONES`` reads
+    the clones (an empty list for datasets made before clones were recorded)."""
     rows = []
-    with open(sidecar_dir(root) / ATTEMPTS, "rb") as f:
+    path = sidecar_dir(root) / table
+    if table != ATTEMPTS and not path.exists():
+        return rows
+    with open(path, "rb") as f:
         for line in f:
             if line.endswith(b"\n"):
                 rows.append(json.loads(line))

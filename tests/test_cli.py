@@ -43,9 +43,22 @@ def comparable(rows: list[dict]) -> list[dict]:
 
 @pytest.fixture(scope="module")
 def small_run(tmp_path_factory) -> Path:
+    """24 attempts, a commit point after every generation, made by the real console script; what it printed
+    is kept in console.txt beside the dataset."""
     out = tmp_path_factory.mktemp("cli") / "ds"
-    assert generate(out, "--seed", "1") == 0
+    cmd = [sys.executable, "-m", "babblegen.cli", "generate", "--out", str(out), *SMALL, "--seed", "1"]
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=900)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    (out.parent / "console.txt").write_text(proc.stdout + proc.stderr)
     return out
+
+
+def test_a_run_with_many_commit_points_prints_a_handful_of_lines(small_run):
+    lines = (small_run.parent / "console.txt").read_text().splitlines()
+    generations = len({r["generation"] for r in read_attempts(small_run)})
+    assert generations >= 3, "several commit points (one per generation)"
+    assert 2 <= len(lines) <= 4, lines  # the summary, the dataset, how to load it: no per-episode bars
+    assert lines[0].startswith("finished: 24 attempts")
 
 
 def test_dataset_loads_and_agrees_with_sidecar(small_run):
@@ -65,8 +78,8 @@ def test_dataset_loads_and_agrees_with_sidecar(small_run):
     assert tuple(item["observation.images.head"].shape) == (3, 64, 64)
     assert tuple(item["observation.environment_state"].shape) == (7 * len(names),)
 
-    phash = make_descriptor("phash")
-    codes = np.stack([from_hex(r["descriptor"], 1) for r in executed])
+    phash = make_descriptor(info["config"]["descriptor"])
+    codes = np.stack([from_hex(r["descriptor"], phash.n_words) for r in executed])
     for row in executed:
         ep = ds.meta.episodes[row["episode_index"]]
         start, stop = int(ep["dataset_from_index"]), int(ep["dataset_to_index"])
@@ -78,9 +91,9 @@ def test_dataset_loads_and_agrees_with_sidecar(small_run):
         final = frames[-1]["observation.environment_state"].numpy().reshape(len(names), 7)
         np.testing.assert_allclose(final, [row["final_poses"][n] for n in names], atol=1e-5)
         # The descriptor was computed on the raw render; the video is lossy (AV1, CRF 30), which moves a
-        # 64-bit pHash by a bit or two at most (measured 0-2).
+        # pHash by a few bits (64-bit: 0-2 measured; 256-bit: a few more), far below two outcomes' distance.
         code = phash(to_uint8_image(frames[-1]["observation.images.head"].numpy()))
-        assert hamming(code[None], codes[row["episode_index"]][None])[0, 0] <= 4
+        assert hamming(code[None], codes[row["episode_index"]][None])[0, 0] <= phash.n_bits // 16
 
 
 def test_run_info_records_how_the_dataset_was_made(small_run):
@@ -89,6 +102,16 @@ def test_run_info_records_how_the_dataset_was_made(small_run):
     assert info["config"]["noveb"]["population"] == 12 and info["config"]["noveb"]["sigma"] == 0.3
     for package in ("lerobot", "sapien", "mani-skill", "ompl", "torch"):
         assert info["versions"][package] != "not installed"
+
+
+def test_dataset_card_describes_the_dataset(small_run):
+    card = (small_run / "README.md").read_text()
+    rows = read_attempts(small_run)
+    executed = sum(bool(r["feasible"]) for r in rows)
+    assert card.startswith("---\n") and "license: mit" in card and "- LeRobot" in card  # hub card metadata
+    assert f"**Episodes:** {executed} executed movements out of {len(rows)} attempted" in card
+    assert '"robot_type": "pr2_like_arm"' in card and '"fps": 10' in card  # meta/info.json, as LeRobot shows it
+    assert "`action[t]` leads to" in card and '"explorer": "noveb"' in card
 
 
 def test_existing_output_is_refused_and_left_alone(small_run, capsys):
@@ -113,6 +136,7 @@ def test_resume_refuses_a_directory_that_is_not_a_babblegen_dataset(tmp_path, ca
         (["--population", "1"], "population"),
         (["--population", "4", "--k", "4"], "must be below the population"),
         (["--k", "0"], "k must be"),
+        (["--width", "100000"], "at most 2048x2048"),
     ],
 )
 def test_impossible_values_are_refused(tmp_path, capsys, flags, message):
@@ -135,6 +159,15 @@ def test_bad_flags_exit_2_with_the_valid_choices(tmp_path, capsys, flags, messag
         main(["generate", "--out", str(tmp_path / "ds"), *flags])
     assert exc.value.code == 2
     assert message in capsys.readouterr().err
+
+
+def test_generate_help_states_each_default_once(capsys):
+    with pytest.raises(SystemExit):
+        main(["generate", "--help"])
+    text = capsys.readouterr().out
+    assert "(default:" not in text
+    assert "[default: noveb]" in text and "[default: 12]" in text
+    assert text.count("[default: noveb]") == 1
 
 
 def test_unwritable_output_directory_is_refused(capsys):
@@ -173,6 +206,8 @@ def test_sigkill_then_resume_matches_an_uninterrupted_run(small_run, tmp_path):
     for key in ("observation.state", "action", "observation.environment_state", "observation.contacts"):
         np.testing.assert_array_equal(got.hf_dataset[key], ref.hf_dataset[key])
     assert got.hf_dataset["episode_index"] == ref.hf_dataset["episode_index"]
+    episodes_line = next(line for line in (small_run / "README.md").read_text().splitlines() if "**Episodes:**" in line)
+    assert episodes_line in (killed / "README.md").read_text(), "the card is current after a resume"
     leftovers = [*killed.glob("tmp*"), *(p for p in (killed / "images").rglob("*") if p.is_file())]
     assert leftovers == [], "what the killed writer had in flight is gone"
 
@@ -188,3 +223,97 @@ def test_sigterm_leaves_a_dataset_that_loads(tmp_path):
     ds = load_dataset(out, read_run_info(out)["repo_id"])
     assert ds.meta.total_episodes == len(executed) > 0
     assert len(ds) == sum(r["n_frames"] for r in executed)
+
+
+def test_a_second_run_on_a_dataset_in_use_is_refused(tmp_path, capsys):
+    out = tmp_path / "busy"
+    proc = _spawn(out, "--seed", "3", "--max-attempts", "400")
+    try:
+        _wait_for_rows(out, 14, proc)
+        assert generate(out, "--seed", "3", "--resume") == 2
+        assert "in use by another babblegen run" in capsys.readouterr().err
+        assert proc.poll() is None, "the first run goes on"
+        _wait_for_rows(out, 30, proc)
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        proc.wait(timeout=120)
+    rows = read_attempts(out)
+    executed = [r for r in rows if r["feasible"]]
+    ds = load_dataset(out, read_run_info(out)["repo_id"])
+    assert ds.meta.total_episodes == len(executed) > 0, "the first run's dataset is whole"
+    assert generate(out, "--seed", "3", "--resume", "--max-attempts", "40") == 0, "free again once it stopped"
+
+
+def test_a_damaged_checkpoint_falls_back_to_the_commit_point_before_it(small_run, tmp_path, capsys):
+    import shutil
+
+    out = tmp_path / "damaged"
+    proc = _spawn(out, "--seed", "1")
+    deadline = time.time() + 240
+    while not (out / "babblegen" / "checkpoint.prev.json").exists():  # two commit points made
+        assert proc.poll() is None and time.time() < deadline, "no second commit point"
+        time.sleep(0.05)
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait()
+    sdir = out / "babblegen"
+    state = (sdir / "checkpoint.json").read_bytes()
+    assert state.startswith(b'{"format":"babblegen-state/1"'), "plain JSON, nothing to unpickle"
+    spare = tmp_path / "spare"
+    shutil.copytree(out, spare)
+
+    (sdir / "checkpoint.json").write_bytes(state[: len(state) // 2])  # torn
+    assert generate(out, "--seed", "1", "--resume") == 0
+    assert "resuming from the commit point before it" in capsys.readouterr().err
+    assert comparable(read_attempts(out)) == comparable(read_attempts(small_run)), "exact all the same"
+
+    for name in ("checkpoint.json", "checkpoint.prev.json"):
+        (spare / "babblegen" / name).write_bytes(b"\x80\x04garbage")
+    assert generate(spare, "--seed", "1", "--resume") == 2
+    err = capsys.readouterr().err
+    assert "damaged" in err and "no earlier commit point" in err and "Traceback" not in err
+
+
+def test_resume_extends_a_run(small_run, tmp_path):
+    import shutil
+
+    out = tmp_path / "more-attempts"
+    shutil.copytree(small_run, out)
+    assert generate(out, "--seed", "1", "--resume", "--max-attempts", "36") == 0
+    assert [r["attempt"] for r in read_attempts(out)] == list(range(36))
+    assert read_run_info(out)["config"]["max_attempts"] == 36
+
+    gens = tmp_path / "more-generations"
+    flags = ["--generations", "2", "--checkpoint-every", "1", "--width", "64", "--height", "64", "--no-progress"]
+    assert main(["generate", "--out", str(gens), *flags, "--no-rerun"]) == 0
+    assert {r["generation"] for r in read_attempts(gens)} == {0, 1}
+    assert main(["generate", "--out", str(gens), "--resume", "--generations", "3", "--no-progress"]) == 0
+    assert {r["generation"] for r in read_attempts(gens)} == {0, 1, 2}
+
+
+def test_a_full_disk_stops_with_one_clear_line_and_resume_completes(tmp_path):
+    disk = tmp_path / "disk"
+    disk.mkdir()
+    mounted = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=2m", "tmpfs", str(disk)], capture_output=True)
+    if mounted.returncode != 0:
+        pytest.skip(f"cannot mount a small tmpfs here: {mounted.stderr.decode().strip()}")
+    try:
+        out = disk / "ds"
+        cmd = [sys.executable, "-m", "babblegen.cli", "generate", "--out", str(out), "--max-attempts", "60"]
+        cmd += ["--checkpoint-every", "1", "--no-progress", "--no-rerun"]
+        proc = subprocess.run(cmd, capture_output=True, text=True, timeout=900)
+        assert proc.returncode == 1, proc.stdout + proc.stderr
+        assert "Traceback" not in proc.stderr, proc.stderr
+        assert (
+            proc.stderr.strip()
+            .splitlines()[-1]
+            .startswith(f"babblegen: error: no space left on the device holding {out}")
+        )
+        subprocess.run(["mount", "-o", "remount,size=200m", str(disk)], check=True)
+        resumed = subprocess.run([*cmd, "--resume"], capture_output=True, text=True, timeout=900)
+        assert resumed.returncode == 0, resumed.stdout + resumed.stderr
+        rows = read_attempts(out)
+        assert len(rows) == 60
+        ds = load_dataset(out, read_run_info(out)["repo_id"])
+        assert ds.meta.total_episodes == sum(bool(r["feasible"]) for r in rows)
+    finally:
+        subprocess.run(["umount", "-l", str(disk)], capture_output=True)

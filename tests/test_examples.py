@@ -58,3 +58,18 @@ def test_view_episode(small_noveb_dataset: Path, tmp_path: Path):
         assert out.stat().st_size > 10_000
         verify = subprocess.run([str(RERUN), "rrd", "verify", str(out)], capture_output=True, text=True, timeout=300)
         assert verify.returncode == 0, verify.stderr
+
+
+def test_world_model_split_keeps_each_genome_on_one_side():
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("train_world_model", ROOT / "examples" / "train_world_model.py")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module  # its dataclasses look their module up
+    spec.loader.exec_module(module)
+    groups = np.array([0, 0, 1, 2, 2, 2, 3, 4, 5, 5, 6])
+    for seed in range(20):
+        train, test = module.split(groups, 3, np.random.default_rng(seed))
+        assert sorted([*train, *test]) == list(range(len(groups)))  # every episode, once
+        assert set(groups[train]).isdisjoint(groups[test])  # no genome on both sides
+        assert 3 <= len(test) <= 5  # whole groups until at least 3 episodes

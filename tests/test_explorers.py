@@ -1,5 +1,3 @@
-import pickle
-
 import numpy as np
 import pytest
 
@@ -11,6 +9,7 @@ from babblegen.explorers import (
     make_explorer,
 )
 from babblegen.explorers.base import Candidate
+from babblegen.exporters import state_file
 
 START = np.array([0.5, 0.0, 0.5])
 PI = np.pi
@@ -99,9 +98,10 @@ def test_generation_flow_indices_and_parents():
     assert ex.archive_size == 1 and sum(e.archived for e in evals) == 1
 
     gen1 = ex.ask()
-    assert [c.index for c in gen1] == list(range(12, 24))
+    assert [c.index for c in gen1] == list(range(12, 12 + len(gen1)))  # clones take no attempt index
     assert all(c.generation == 1 and c.parent in feasible for c in gen1)
     ex.tell(gen1, [fake_descriptor(c.genome) for c in gen1])
+    assert len(gen1) + len(ex.last_clones) == 12  # 12 children: evaluated or reusing an outcome
     assert ex.generation == 2 and len(ex.parents) <= 12
     assert not ex.done
     short = make_noveb(generations=2)
@@ -110,7 +110,8 @@ def test_generation_flow_indices_and_parents():
 
 
 def test_novelty_archive_and_selection_by_hand():
-    ex = make_noveb(population=4)
+    # the paper's literal procedure: every child evaluated, most novel archived, ties to the older
+    ex = make_noveb(population=4, tie_break="oldest", archive_policy="most_novel", reuse_clones=False)
     gen0 = ex.ask()
     # codes 0b0, 0b1, 0b11 and one infeasible; k = 3 but only two neighbours exist:
     #   c0: 1, 2 -> 1.5    c1: 1, 1 -> 1.0    c2: 2, 1 -> 1.5 ; archive the most novel, tie -> c0
@@ -198,7 +199,7 @@ def test_same_seed_same_run_and_different_seed_differs():
 def test_state_dict_round_trip_continues_identically():
     ex = make_noveb(5, extend_prob=0.3)
     run_rounds(ex, 4)
-    state = pickle.loads(pickle.dumps(ex.state_dict()))
+    state = state_file.loads(state_file.dumps(ex.state_dict()))
     expected = run_rounds(ex, 4)
     other = make_noveb(999)  # different seed: everything must come from the state
     other.load_state_dict(state)
@@ -211,7 +212,7 @@ def test_state_between_ask_and_tell_reissues_the_batch():
     ex = make_noveb(5)
     run_rounds(ex, 2)
     asked = ex.ask()
-    state = pickle.loads(pickle.dumps(ex.state_dict()))
+    state = state_file.loads(state_file.dumps(ex.state_dict()))
     other = make_noveb(0)
     other.load_state_dict(state)
     again = other.ask()
@@ -261,7 +262,7 @@ def test_random_babbling_novelty_and_state():
     evals = rb.tell(cands, [np.array([0], np.uint64), None, np.array([1], np.uint64)])
     assert [(e.novelty, e.archived) for e in evals] == [(1.0, True), (None, False), (1.0, False)]
     assert rb.archive_size == 1
-    state = pickle.loads(pickle.dumps(rb.state_dict()))
+    state = state_file.loads(state_file.dumps(rb.state_dict()))
     expected = rb.ask()
     other = RandomBabbling({"population": 3}, 42, joint_limits=PR2_LIMITS)
     other.load_state_dict(state)
@@ -270,3 +271,68 @@ def test_random_babbling_novelty_and_state():
     np.testing.assert_array_equal(np.stack([c.genome for c in got]), np.stack([c.genome for c in expected]))
     with pytest.raises(ValueError):
         other.load_state_dict(make_noveb().state_dict())
+
+
+def test_clones_reuse_the_outcome_and_take_no_attempt():
+    ex = make_noveb(mutation_prob=0.0, extend_prob=0.0)  # every child is a copy of its parent
+    gen0 = ex.ask()
+    ex.tell(gen0, [fake_descriptor(c.genome) for c in gen0])
+    codes = {c.index: fake_descriptor(c.genome) for c in gen0}
+    assert ex.ask() == []  # nothing to simulate
+    ex.tell([], [])
+    clones = ex.last_clones
+    assert len(clones) == 12 and ex.generation == 2
+    assert all(c.source == c.parent and c.source in codes and c.generation == 1 for c in clones)
+    assert all(c.novelty is not None for c in clones)  # the search sees them, with the parent's descriptor
+    assert ex.archive_size == 1  # a clone's descriptor is not new: nothing archived
+    ex.config.mutation_prob = 1.0
+    assert ex.ask()[0].index == 12  # the next real attempt continues the numbering
+
+    literal = make_noveb(mutation_prob=0.0, extend_prob=0.0, reuse_clones=False)
+    run_rounds(literal, 1)
+    again = literal.ask()
+    assert len(again) == 12 and [c.index for c in again] == list(range(12, 24))
+
+
+def test_identical_children_of_one_batch_are_simulated_once():
+    ex = make_noveb(mutation_prob=0.0, extend_prob=1.0)  # one-waypoint parent + extension: one possible child
+    run_rounds(ex, 1)
+    cands = ex.ask()
+    keys = {c.genome.tobytes() for c in cands}
+    assert len(keys) == len(cands)  # no genome asked twice
+    ex.tell(cands, [fake_descriptor(c.genome) for c in cands])
+    by_index = {c.index: c for c in cands}
+    assert ex.last_clones and len(cands) + len(ex.last_clones) == 12
+    for clone in ex.last_clones:
+        np.testing.assert_array_equal(clone.genome, by_index[clone.source].genome)
+
+
+def test_ties_go_to_the_newest_by_default():
+    for tie_break, survivors in (("newest", [3, 2]), ("oldest", [0, 1])):
+        ex = make_noveb(population=2, k=1, mutation_prob=1.0, tie_break=tie_break)
+        zero = np.array([0], np.uint64)
+        ex.tell(ex.ask(), [zero, zero])
+        gen1 = ex.ask()
+        assert [c.index for c in gen1] == [2, 3]
+        ex.tell(gen1, [zero, zero])  # four individuals, all novelty 0
+        assert ex.parents == survivors
+
+
+def test_archive_takes_only_descriptors_it_does_not_hold():
+    from babblegen.novelty import Archive, MostNovelUnseen
+
+    archive = Archive()
+    archive.add(np.array([5], np.uint64))
+    codes = np.array([[5], [1], [1], [6]], np.uint64)
+    nov = np.array([3.0, 2.0, 2.0, 1.0])
+    assert MostNovelUnseen(1).select(nov, codes, archive).tolist() == [1]
+    assert MostNovelUnseen(3).select(nov, codes, archive).tolist() == [1, 3]
+
+
+def test_max_new_caps_a_batch():
+    ex = make_noveb()
+    cands = ex.ask(max_new=5)
+    assert [c.index for c in cands] == [0, 1, 2, 3, 4]
+    assert [c.index for c in ex.ask(max_new=1)] == [0, 1, 2, 3, 4]  # the open batch is re-issued as it is
+    ex.tell(cands, [fake_descriptor(c.genome) for c in cands])
+    assert ex.ask()[0].index == 5

@@ -1,5 +1,3 @@
-import pickle
-
 import imagehash
 import numpy as np
 import pytest
@@ -13,6 +11,7 @@ from babblegen.descriptors import (
     to_hex,
     unpack_bits,
 )
+from babblegen.exporters import state_file
 from babblegen.novelty import Archive, MostNovel, hamming, k_smallest_distances, novelty
 
 
@@ -117,7 +116,7 @@ def test_archive_grows_and_round_trips():
         arc.add(np.array([1], dtype=np.uint64))  # wrong width
 
     restored = Archive()
-    restored.load_state_dict(pickle.loads(pickle.dumps(arc.state_dict())))
+    restored.load_state_dict(state_file.loads(state_file.dumps(arc.state_dict())))
     np.testing.assert_array_equal(restored.descriptors, arc.descriptors)
     assert restored.meta == arc.meta
     restored.add(np.array([9, 9], dtype=np.uint64))

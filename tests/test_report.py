@@ -130,3 +130,44 @@ def test_bad_paths_exit_2(args, small_noveb_dataset, tmp_path, capsys):
     err = capsys.readouterr().err
     assert err.startswith("babblegen: error: ") and ("not a babblegen dataset" in err or "does not exist" in err)
     assert not (tmp_path / "out").exists()
+
+
+def test_diversity_counts_distinct_interactions_by_hand():
+    from babblegen.exporters.report import diversity
+
+    names = ["gray_box", "can"]
+    still = {"gray_box": [0.5, -0.2, 0.72], "can": [0.6, 0.0, 0.75]}
+
+    def row(genome, touched=(), moved=None, novelty=0.0, feasible=True):
+        final = dict(still)
+        displacement = {"gray_box": 0.0, "can": 0.0}
+        for name, (xy, d) in (moved or {}).items():
+            final[name] = [*xy, 0.72]
+            displacement[name] = d
+        r = {"kind": "ee_waypoints", "genome": genome, "feasible": feasible, "novelty": novelty}
+        if feasible:
+            r |= {"touched": {n: n in touched for n in names}, "displacement": displacement, "final_poses": final}
+        return r
+
+    rows = [
+        row([[0.1, 0.2, 0.3]], ["can"], {"can": ([0.61, 0.01], 0.05)}, novelty=0.5),
+        row([[0.1, 0.2, 0.3]], ["can"], {"can": ([0.63, 0.01], 0.05)}),  # the same genome again
+        row([[0.9, 0.9, 0.9]], feasible=False),
+        row([[0.5, 0.5, 0.5]]),  # touched nothing
+        row(
+            [[0.2, 0.2, 0.2]],
+            ["gray_box", "can"],
+            {"gray_box": ([0.5, -0.2], 0.005), "can": ([0.611, 0.019], 0.03)},
+            0.2,
+        ),
+    ]
+    d = diversity(rows, names)
+    assert d["distinct_genomes_executed"] == 3
+    assert d["duplicate_episodes"] == 1
+    assert d["touching_genomes"] == 2
+    assert d["touching_genomes_per_object"] == {"gray_box": 1, "can": 2}
+    # the can ended in 2 cm cells (30, 0), (31, 0) and (30, 0) again; the gray box moved 5 mm: not moved
+    assert d["moved_cells"] == 2 and d["moved_cells_per_object"] == {"gray_box": 0, "can": 2}
+    assert d["novelty_positive_share"] == 2 / 4
+    # 1 cm layouts: the can at cells (61, 1), (63, 1), (60, 0) and (61, 1) again, the gray box never moved
+    assert d["distinct_outcomes"] == 3

@@ -162,10 +162,14 @@ def test_frames_are_recorded_consistently(world, push):
         + len(w._timed_path(back))
         + max(round(s.settle_seconds * s.control_freq), 1)
     )
-    # settling goes on (up to max_settle_seconds) while an object still moves
-    extra = round((s.max_settle_seconds - s.settle_seconds) * s.control_freq)
+    # padded to end on a frame; settling goes on, a frame at a time, up to max_settle_seconds while an object
+    # still moves
+    extra_frames = round((s.max_settle_seconds - s.settle_seconds) * s.fps)
     per_frame = s.control_freq // s.fps
-    assert 2 + (steps - 1) // per_frame <= t <= 2 + (steps + extra - 1) // per_frame
+    frames = 1 + -(-steps // per_frame)
+    assert frames <= t <= frames + extra_frames
+    # every frame is taken exactly t / fps into the movement (LeRobot's timestamps)
+    np.testing.assert_allclose(f.time, np.arange(t) / s.fps, atol=1e-9)
     assert f.state.shape == (t, dof) and f.action.shape == (t, dof) and f.ee_pos.shape == (t, 3)
     assert f.object_poses.shape == (t, n_obj, 7) and f.contacts.shape == (t, n_obj)
     assert f.images.shape == (t, s.camera_height, s.camera_width, 3) and f.images.dtype == np.uint8
@@ -173,8 +177,11 @@ def test_frames_are_recorded_consistently(world, push):
     np.testing.assert_allclose(f.state[0], w.home, atol=1e-4)
     np.testing.assert_allclose(f.state[-1], w.home, atol=1e-4)
     np.testing.assert_allclose(f.state[-2], w.home, atol=1e-2)  # settled before the final snap home
-    np.testing.assert_allclose(f.action[0], w.home, atol=1e-6)
-    np.testing.assert_allclose(f.action[-1], w.home, atol=1e-6)
+    # action[t] is sent after observing frame t and leads to frame t + 1 (LeRobot's convention): the first
+    # already moves the arm, the state catches up with it one frame later, and the arm holds home at the end
+    assert np.abs(f.action[0] - w.home).max() > 1e-3
+    assert np.abs(f.state[1:] - f.action[:-1]).mean() < 0.5 * np.abs(f.state[:-1] - f.action[:-1]).mean()
+    np.testing.assert_allclose(f.action[-2:], np.stack([w.home, w.home]), atol=1e-6)
     assert (f.action >= w.kin.lower - 1e-5).all() and (f.action <= w.kin.upper + 1e-5).all()
     # the recorded tool position is the model's FK of the recorded joint state
     np.testing.assert_allclose(f.ee_pos, w.kin.tool_position(f.state.astype(np.float64)), atol=2e-3)

@@ -14,9 +14,9 @@ from typing import Any
 
 import numpy as np
 
-from babblegen.novelty import Archive, MostNovel
+from babblegen.novelty import Archive, make_archive_policy
 
-__all__ = ["Candidate", "Evaluation", "Explorer", "build_config", "check_descriptors"]
+__all__ = ["Candidate", "Clone", "Evaluation", "Explorer", "build_config", "check_descriptors", "genome_key"]
 
 KIND_WAYPOINTS = "ee_waypoints"
 KIND_JOINTS = "joint_target"
@@ -34,6 +34,27 @@ class Candidate:
 
 
 @dataclass
+class Clone:
+    """A child whose genome was already tried: it reuses that attempt's outcome instead of being simulated.
+
+    It is not an attempt (no index of its own, no episode); the search still sees it, as in the paper.
+    """
+
+    generation: int
+    kind: str
+    genome: np.ndarray
+    parent: int | None  # attempt index of the parent
+    source: int  # attempt index whose outcome (descriptor, or infeasibility) it reuses
+    novelty: float | None = None  # set by tell; None when the source was infeasible
+    survived: bool = False  # set by tell: kept as a parent
+
+
+def genome_key(kind: str, genome: np.ndarray) -> str:
+    """Exact identity of a command: equal keys mean the same movement (the world is deterministic)."""
+    return f"{kind}:{np.ascontiguousarray(genome, dtype=np.float64).tobytes().hex()}"
+
+
+@dataclass
 class Evaluation:
     """What the explorer made of one told candidate."""
 
@@ -44,16 +65,20 @@ class Evaluation:
 class Explorer(ABC):
     """Generational ask/tell explorer.
 
-    ``ask`` returns the current batch; calling it again before ``tell`` returns the same batch (so a run
-    restored from a checkpoint taken between the two re-issues it). ``tell`` takes the same candidates in
-    the same order with one descriptor each (``None`` when the candidate was infeasible).
+    ``ask`` returns the current batch of candidates to evaluate (possibly empty when every proposal repeats a
+    genome already tried); calling it again before ``tell`` returns the same batch (so a run restored from a
+    checkpoint taken between the two re-issues it). ``ask(max_new=n)`` caps the batch at n candidates.
+    ``tell`` takes the same candidates in the same order with one descriptor each (``None`` when the
+    candidate was infeasible); afterwards ``last_clones`` lists the proposals that reused earlier outcomes.
     """
 
     name: str
     config: Any
 
+    last_clones: list[Clone]
+
     @abstractmethod
-    def ask(self) -> list[Candidate]: ...
+    def ask(self, max_new: int | None = None) -> list[Candidate]: ...
 
     @abstractmethod
     def tell(self, candidates: list[Candidate], descriptors: list[np.ndarray | None]) -> list[Evaluation]: ...
@@ -92,10 +117,15 @@ class ArchiveExplorer(Explorer):
         self.config = build_config(self.config_class, config)
         self.rng = np.random.default_rng(rng_seed)
         self.archive = Archive()
-        self.policy = MostNovel(self.config.archive_per_generation)
+        self.policy = self._make_policy()
         self._generation = 0
         self._next_index = 0
         self._pending: list[Candidate] = []
+        self._pending_clones: list[Clone] = []
+        self._asked = False  # a batch is out (ask called, tell not yet)
+        # Every genome tried so far -> (its attempt index, its descriptor or None when infeasible).
+        self._outcomes: dict[str, tuple[int, np.ndarray | None]] = {}
+        self.last_clones: list[Clone] = []  # the clones resolved by the last tell, for the sidecar
 
     @property
     def generation(self) -> int:
@@ -105,11 +135,62 @@ class ArchiveExplorer(Explorer):
     def archive_size(self) -> int:
         return len(self.archive)
 
+    @property
+    def batch_open(self) -> bool:
+        """A batch was asked for and not told yet (after a resume: the one in flight at the commit point)."""
+        return self._asked
+
+    @property
+    def attempts_asked(self) -> int:
+        """Candidates handed out so far (attempt indices used), the open batch included."""
+        return self._next_index
+
+    def _make_policy(self):
+        name = getattr(self.config, "archive_policy", "most_novel")
+        return make_archive_policy(name, per_generation=self.config.archive_per_generation)
+
     def _extra_state(self) -> dict[str, Any]:
         return {}
 
     def _load_extra_state(self, state: dict[str, Any]) -> None:
         pass
+
+    def _open_batch(self, batch: list[tuple[str, np.ndarray, int | None]], max_new: int | None) -> None:
+        """Split proposed (kind, genome, parent) into candidates to evaluate and clones of tried genomes.
+
+        With ``reuse_clones`` (the default) a genome tried before, or proposed twice in this batch, becomes a
+        `Clone` of that attempt; otherwise every proposal is evaluated (the paper's literal re-simulation).
+        ``max_new`` caps the candidates (the run's last generation); proposals past it are dropped.
+        """
+        reuse = bool(getattr(self.config, "reuse_clones", True))
+        seen: dict[str, int] = {}
+        cands: list[Candidate] = []
+        clones: list[Clone] = []
+        for kind, genome, parent in batch:
+            key = genome_key(kind, genome)
+            if reuse and key in self._outcomes:
+                clones.append(Clone(self._generation, kind, genome, parent, self._outcomes[key][0]))
+            elif reuse and key in seen:
+                clones.append(Clone(self._generation, kind, genome, parent, seen[key]))
+            elif max_new is None or len(cands) < max_new:
+                seen[key] = self._next_index
+                cands.append(Candidate(self._next_index, self._generation, kind, genome, parent))
+                self._next_index += 1
+        self._pending, self._pending_clones, self._asked = cands, clones, True
+
+    def _issued(self) -> list[Candidate]:
+        return [dataclasses.replace(c, genome=c.genome.copy()) for c in self._pending]
+
+    def _resolve(self, codes: list[np.ndarray | None]) -> list[np.ndarray | None]:
+        """Record the told outcomes; return each pending clone's reused descriptor."""
+        for c, code in zip(self._pending, codes, strict=True):
+            self._outcomes[genome_key(c.kind, c.genome)] = (c.index, code)
+        return [self._outcomes[genome_key(c.kind, c.genome)][1] for c in self._pending_clones]
+
+    def _close_batch(self) -> None:
+        self.last_clones = self._pending_clones
+        self._pending, self._pending_clones, self._asked = [], [], False
+        self._generation += 1
 
     def state_dict(self) -> dict[str, Any]:
         return {
@@ -118,7 +199,10 @@ class ArchiveExplorer(Explorer):
             "rng": self.rng.bit_generator.state,
             "generation": self._generation,
             "next_index": self._next_index,
+            "asked": self._asked,
             "pending": [dataclasses.asdict(c) for c in self._pending],
+            "pending_clones": [dataclasses.asdict(c) for c in self._pending_clones],
+            "outcomes": {k: [i, None if d is None else d.copy()] for k, (i, d) in self._outcomes.items()},
             "archive": self.archive.state_dict(),
             **self._extra_state(),
         }
@@ -127,11 +211,17 @@ class ArchiveExplorer(Explorer):
         if state.get("name") != self.name:
             raise ValueError(f"state is for explorer {state.get('name')!r}, not {self.name!r}")
         self.config = build_config(self.config_class, dict(state["config"]))
-        self.policy = MostNovel(self.config.archive_per_generation)
+        self.policy = self._make_policy()
         self.rng.bit_generator.state = state["rng"]
         self._generation = int(state["generation"])
         self._next_index = int(state["next_index"])
         self._pending = [Candidate(**{**c, "genome": np.array(c["genome"])}) for c in state["pending"]]
+        self._pending_clones = [Clone(**{**c, "genome": np.array(c["genome"])}) for c in state["pending_clones"]]
+        self._asked = bool(state["asked"])
+        self._outcomes = {
+            key: (int(i), None if d is None else np.asarray(d, dtype=np.uint64))
+            for key, (i, d) in state["outcomes"].items()
+        }
         self.archive = Archive()
         self.archive.load_state_dict(state["archive"])
         self._load_extra_state(state)
@@ -153,10 +243,10 @@ def build_config[C](cls: type[C], config: C | dict[str, Any] | None) -> C:
 
 
 def check_descriptors(
-    pending: list[Candidate], candidates: list[Candidate], descriptors: list[np.ndarray | None]
+    pending: list[Candidate], candidates: list[Candidate], descriptors: list[np.ndarray | None], asked: bool = True
 ) -> list[np.ndarray | None]:
     """Check a ``tell`` call against the outstanding batch; returns the descriptors as 1-D uint64 arrays."""
-    if not pending:
+    if not asked:
         raise RuntimeError("tell() called without an outstanding ask()")
     if len(candidates) != len(descriptors):
         raise ValueError(f"{len(candidates)} candidates but {len(descriptors)} descriptors")

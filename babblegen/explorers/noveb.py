@@ -1,12 +1,14 @@
 """Novelty-driven Evolutionary Babbling (Maestre et al.): novelty search with NSGA-II survival.
 
 Generation 0 asks ``population`` random genomes (one final point uniform in [0, 1]^3). Every later generation
-asks children of the current parents: binary tournament on (rank, crowding), optional crossover, Gaussian
-mutation with probability ``mutation_prob`` and waypoint extension with probability ``extend_prob``. As in the
-paper, a child that is neither mutated nor extended is a copy of its parent and is evaluated again. ``tell``
-recomputes the novelty of parents ∪ feasible children against that union plus the archive, archives the most
-novel newly evaluated child, and keeps ``population`` survivors by NSGA-II on the single objective novelty,
-i.e. elitist truncation.
+proposes children of the current parents: binary tournament on (rank, crowding), optional crossover, Gaussian
+mutation with probability ``mutation_prob`` and waypoint extension with probability ``extend_prob``. A child
+that is neither mutated nor extended is a copy of its parent. The simulation is deterministic, so such a clone
+(any genome tried before) reuses the earlier outcome instead of being simulated again (``reuse_clones``; off,
+it is evaluated again as in the paper's noisy simulator). ``tell`` recomputes the novelty of parents ∪ feasible
+children (clones included) against that union plus the archive, archives the most novel newly evaluated child
+(by default only if the archive does not already hold its descriptor), and keeps ``population`` survivors by
+NSGA-II on the single objective novelty, i.e. elitist truncation, with ties broken by ``tie_break``.
 
 Infeasible candidates (no IK solution or no collision-free plan: descriptor ``None``) have no behaviour, so
 they get no novelty, are never archived and never survive selection; they still consume an attempt index.
@@ -14,7 +16,6 @@ they get no novelty, are never archived and never survive selection; they still 
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -28,7 +29,7 @@ from babblegen.explorers.base import (
     check_descriptors,
 )
 from babblegen.genome import crossover, extend, gaussian_mutation, random_genome
-from babblegen.novelty import novelty
+from babblegen.novelty import ARCHIVE_POLICIES, novelty
 from babblegen.selection import binary_tournament, crowding_distance, non_dominated_sort, nsga2_select
 
 __all__ = ["NovEB", "NovEBConfig"]
@@ -53,7 +54,9 @@ class NovEBConfig:
     extend_prob: float = 0.05
     crossover_prob: float = 0.0
     archive_per_generation: int = 1
-    archive_policy: str = field(default="most_novel")
+    archive_policy: str = field(default="most_novel_unseen")
+    tie_break: str = "newest"
+    reuse_clones: bool = True
 
     def __post_init__(self) -> None:
         if int(self.population) != self.population or self.population < 2:
@@ -72,8 +75,10 @@ class NovEBConfig:
             raise ValueError(f"sigma must be >= 0, got {self.sigma}")
         if int(self.archive_per_generation) != self.archive_per_generation or self.archive_per_generation < 0:
             raise ValueError(f"archive_per_generation must be an integer >= 0, got {self.archive_per_generation}")
-        if self.archive_policy != "most_novel":
-            raise ValueError(f"unknown archive_policy {self.archive_policy!r}; known: ['most_novel']")
+        if self.archive_policy not in ARCHIVE_POLICIES:
+            raise ValueError(f"unknown archive_policy {self.archive_policy!r}; known: {sorted(ARCHIVE_POLICIES)}")
+        if self.tie_break not in TIE_BREAKS:
+            raise ValueError(f"unknown tie_break {self.tie_break!r}; known: {list(TIE_BREAKS)}")
         if self.n_children < 1:
             raise ValueError(f"keep_fraction {self.keep_fraction} leaves no room for children")
 
@@ -81,6 +86,9 @@ class NovEBConfig:
     def n_children(self) -> int:
         """Children asked per generation after the first."""
         return int(round(self.population * (1.0 / self.keep_fraction - 1.0)))
+
+
+TIE_BREAKS = ("newest", "oldest", "random")
 
 
 class NovEB(ArchiveExplorer):
@@ -115,20 +123,16 @@ class NovEB(ArchiveExplorer):
         return [int(i) for i in self._parent_index]
 
     # ------------------------------------------------------------------ ask / tell
-    def _candidate(self, genome: np.ndarray, parent: int | None) -> Candidate:
-        c = Candidate(self._next_index, self._generation, KIND_WAYPOINTS, genome, parent)
-        self._next_index += 1
-        return c
-
-    def ask(self) -> list[Candidate]:
-        if not self._pending:
+    def ask(self, max_new: int | None = None) -> list[Candidate]:
+        if not self._asked:
             if not self._parents:
-                self._pending = [self._candidate(random_genome(self.rng), None) for _ in range(self.config.population)]
+                proposals = [(random_genome(self.rng), None) for _ in range(self.config.population)]
             else:
-                self._pending = self._make_children()
-        return [dataclasses.replace(c, genome=c.genome.copy()) for c in self._pending]
+                proposals = self._make_children()
+            self._open_batch([(KIND_WAYPOINTS, g, p) for g, p in proposals], max_new)
+        return self._issued()
 
-    def _make_children(self) -> list[Candidate]:
+    def _make_children(self) -> list[tuple[np.ndarray, int]]:
         cfg = self.config
         n = cfg.n_children
         objectives = self._parent_novelty[:, None]
@@ -147,38 +151,58 @@ class NovEB(ArchiveExplorer):
                 g = gaussian_mutation(g, cfg.sigma, self.rng)
             if draws[i, 2] < cfg.extend_prob:
                 g = extend(g, self.start_norm, self.rng)
-            children.append(self._candidate(np.array(g, dtype=np.float64), int(self._parent_index[p])))
+            children.append((np.array(g, dtype=np.float64), int(self._parent_index[p])))
         return children
 
     def tell(self, candidates: list[Candidate], descriptors: list[np.ndarray | None]) -> list[Evaluation]:
-        codes = check_descriptors(self._pending, candidates, descriptors)
-        pending = self._pending
-        feasible = [i for i, d in enumerate(codes) if d is not None]
-        n_par = len(self._parents)
+        codes = check_descriptors(self._pending, candidates, descriptors, self._asked)
+        pending, clones = self._pending, self._pending_clones
+        clone_codes = self._resolve(codes)
         evaluations = [Evaluation(None, False) for _ in pending]
-        if feasible:
-            new_codes = np.stack([codes[i] for i in feasible])  # type: ignore[misc]
+        # New individuals: feasible evaluated candidates, then clones of feasible genomes.
+        fresh = [i for i, d in enumerate(codes) if d is not None]
+        reused = [i for i, d in enumerate(clone_codes) if d is not None]
+        new_codes_list = [codes[i] for i in fresh] + [clone_codes[i] for i in reused]
+        if new_codes_list:
+            n_par = len(self._parents)
+            new_codes = np.stack(new_codes_list)  # type: ignore[arg-type]
             if n_par and self._parent_codes.shape[1] != new_codes.shape[1]:
                 raise ValueError("descriptor width changed during the run")
             pool_codes = np.concatenate([self._parent_codes, new_codes]) if n_par else new_codes
             nov = novelty(pool_codes, pool_codes, self.archive.descriptors, self.config.k)
             new_nov = nov[n_par:]
-            for j, i in enumerate(feasible):
+            for j, i in enumerate(fresh):
                 evaluations[i].novelty = float(new_nov[j])
-            for j in self.policy.select(new_nov, new_codes, self.archive):
-                c = pending[feasible[int(j)]]
+            for j, i in enumerate(reused):
+                clones[i].novelty = float(new_nov[len(fresh) + j])
+            # Only evaluated individuals enter the archive: a clone's descriptor has been seen.
+            for j in self.policy.select(new_nov[: len(fresh)], new_codes[: len(fresh)], self.archive):
+                c = pending[fresh[int(j)]]
                 self.archive.add(new_codes[j], {"index": c.index, "generation": c.generation})
-                evaluations[feasible[int(j)]].archived = True
-            pool_genomes = self._parents + [pending[i].genome for i in feasible]
-            pool_index = np.concatenate([self._parent_index, [pending[i].index for i in feasible]])
-            keep = nsga2_select(nov[:, None], min(self.config.population, len(pool_genomes)))
+                evaluations[fresh[int(j)]].archived = True
+            pool_genomes = self._parents + [pending[i].genome for i in fresh] + [clones[i].genome for i in reused]
+            pool_index = np.concatenate(
+                [self._parent_index, [pending[i].index for i in fresh], [clones[i].source for i in reused]]
+            )
+            keep = nsga2_select(nov[:, None], min(self.config.population, len(pool_genomes)), self._tie_order(nov))
+            for k in keep:
+                if k >= n_par + len(fresh):
+                    clones[reused[int(k) - n_par - len(fresh)]].survived = True
             self._parents = [pool_genomes[i] for i in keep]
             self._parent_codes = pool_codes[keep]
             self._parent_index = pool_index[keep].astype(np.int64)
             self._parent_novelty = nov[keep]
-        self._pending = []
-        self._generation += 1
+        self._close_batch()
         return evaluations
+
+    def _tie_order(self, nov: np.ndarray) -> np.ndarray:
+        """Rank among equally novel individuals of the pool (parents first, then this generation's)."""
+        n = len(nov)
+        if self.config.tie_break == "oldest":
+            return np.arange(n)
+        if self.config.tie_break == "newest":
+            return np.arange(n)[::-1].copy()
+        return self.rng.permutation(n)
 
     # ------------------------------------------------------------------ checkpointing
     def _extra_state(self) -> dict[str, Any]:

@@ -8,7 +8,6 @@ the most novel new individual of each batch), so the two explorers' novelty colu
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass
 from typing import Any
 
@@ -21,7 +20,7 @@ from babblegen.explorers.base import (
     Evaluation,
     check_descriptors,
 )
-from babblegen.novelty import novelty
+from babblegen.novelty import ARCHIVE_POLICIES, novelty
 
 __all__ = ["RandomBabbling", "RandomBabblingConfig"]
 
@@ -34,6 +33,7 @@ class RandomBabblingConfig:
     generations: int = 2000
     k: int = 3
     archive_per_generation: int = 1
+    archive_policy: str = "most_novel_unseen"
 
     def __post_init__(self) -> None:
         if int(self.population) != self.population or self.population < 1:
@@ -44,6 +44,8 @@ class RandomBabblingConfig:
             raise ValueError(f"k must be an integer >= 1, got {self.k}")
         if int(self.archive_per_generation) != self.archive_per_generation or self.archive_per_generation < 0:
             raise ValueError(f"archive_per_generation must be an integer >= 0, got {self.archive_per_generation}")
+        if self.archive_policy not in ARCHIVE_POLICIES:
+            raise ValueError(f"unknown archive_policy {self.archive_policy!r}; known: {sorted(ARCHIVE_POLICIES)}")
 
 
 class RandomBabbling(ArchiveExplorer):
@@ -68,17 +70,16 @@ class RandomBabbling(ArchiveExplorer):
             raise ValueError("joint_limits must have lower <= upper for every joint")
         self.joint_limits = limits
 
-    def ask(self) -> list[Candidate]:
-        if not self._pending:
+    def ask(self, max_new: int | None = None) -> list[Candidate]:
+        if not self._asked:
             lo, hi = self.joint_limits[:, 0], self.joint_limits[:, 1]
             targets = lo + (hi - lo) * self.rng.random((self.config.population, lo.shape[0]))
-            for t in targets:
-                self._pending.append(Candidate(self._next_index, self._generation, KIND_JOINTS, t, None))
-                self._next_index += 1
-        return [dataclasses.replace(c, genome=c.genome.copy()) for c in self._pending]
+            self._open_batch([(KIND_JOINTS, t, None) for t in targets], max_new)
+        return self._issued()
 
     def tell(self, candidates: list[Candidate], descriptors: list[np.ndarray | None]) -> list[Evaluation]:
-        codes = check_descriptors(self._pending, candidates, descriptors)
+        codes = check_descriptors(self._pending, candidates, descriptors, self._asked)
+        self._resolve(codes)
         evaluations = [Evaluation(None, False) for _ in codes]
         feasible = [i for i, d in enumerate(codes) if d is not None]
         if feasible:
@@ -90,8 +91,7 @@ class RandomBabbling(ArchiveExplorer):
                 c = self._pending[feasible[int(j)]]
                 self.archive.add(batch[j], {"index": c.index, "generation": c.generation})
                 evaluations[feasible[int(j)]].archived = True
-        self._pending = []
-        self._generation += 1
+        self._close_batch()
         return evaluations
 
     def _extra_state(self) -> dict[str, Any]:

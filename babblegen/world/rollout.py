@@ -29,11 +29,12 @@ class Frames:
     """Per-frame recordings, frame 0 is the scene before the movement and the last frame after it."""
 
     state: np.ndarray  # (T, dof) joint positions
-    action: np.ndarray  # (T, dof) commanded joint positions
+    action: np.ndarray  # (T, dof) joint targets sent after frame t (LeRobot's convention: they lead to t + 1)
     ee_pos: np.ndarray  # (T, 3) tool point, world frame
     object_poses: np.ndarray  # (T, n_objects, 7) x, y, z, qw, qx, qy, qz
     contacts: np.ndarray  # (T, n_objects) 1 where the arm touched that object since the previous frame
     images: np.ndarray  # (T, H, W, 3) uint8 head camera
+    time: np.ndarray | None = None  # (T,) simulated seconds since the movement began; t / fps by construction
 
     def __len__(self) -> int:
         return len(self.state)

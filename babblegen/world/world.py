@@ -9,7 +9,6 @@ controller, let the scene settle, and record frames at a fixed rate.
 from __future__ import annotations
 
 import time
-from dataclasses import asdict, dataclass
 
 import gymnasium as gym
 import numpy as np
@@ -21,36 +20,7 @@ from babblegen.world.collision import Box, SphereCollisionModel
 from babblegen.world.kinematics import ArmKinematics, UrdfModel
 from babblegen.world.planner import JointPlanner
 from babblegen.world.rollout import Command, Frames, Rollout
-
-
-@dataclass(frozen=True)
-class WorldSettings:
-    """Simulation, rendering and planning choices (all recorded with every dataset)."""
-
-    camera_width: int = 128
-    camera_height: int = 128
-    fps: int = 10  # recorded frames per second of simulated time
-    control_freq: int = 20  # joint targets per second
-    sim_freq: int = 100  # physics steps per second
-    max_joint_speed: float = 1.5  # rad/s on the fastest joint along the path
-    dwell_seconds: float = 0.2  # pause at the final waypoint before returning
-    settle_seconds: float = 0.5  # at least this long after the return, before the after image ...
-    max_settle_seconds: float = 3.0  # ... and longer, up to this, while an object still moves
-    rest_speed: float = 0.005  # m/s (and 10x that in rad/s): an object slower than this is at rest
-    plan_iterations: int = 20_000  # RRTConnect iterations per segment (deterministic, load-independent)
-    plan_time_limit: float = 30.0  # seconds per segment: a safety net only
-    ik_tolerance: float = 0.005  # metres
-    ik_seeds: int = 8
-    collision_margin: float = 0.01  # metres kept from table, floor and robot body
-
-    def __post_init__(self):
-        if self.control_freq % self.fps or self.sim_freq % self.control_freq:
-            raise ValueError("need fps | control_freq | sim_freq (e.g. 10, 20, 100)")
-        if min(self.camera_width, self.camera_height) < 16:
-            raise ValueError("camera resolution must be at least 16x16")
-
-    def to_dict(self) -> dict:
-        return asdict(self)
+from babblegen.world.settings import WorldSettings
 
 
 class World:
@@ -280,28 +250,30 @@ class World:
         back = self._timed_path(out_path[::-1])
         settle = np.repeat(self.home[None], max(int(round(s.settle_seconds * s.control_freq)), 1), axis=0)
         schedule = np.concatenate([out, dwell, back, settle])
-        extra_settle = max(int(round((s.max_settle_seconds - s.settle_seconds) * s.control_freq)), 0)
+        per_frame = s.control_freq // s.fps
+        # end on a frame: the last frame is exactly 1 / fps after the one before, as its timestamp says
+        schedule = np.concatenate([schedule, np.repeat(self.home[None], -len(schedule) % per_frame, axis=0)])
+        extra_settle = max(int(round((s.max_settle_seconds - s.settle_seconds) * s.fps)), 0) * per_frame
 
         self.reset()
         substeps = s.sim_freq // s.control_freq
-        per_frame = s.control_freq // s.fps
-        rec = {k: [] for k in ("state", "action", "ee_pos", "object_poses", "contacts", "images")}
+        rec = {k: [] for k in ("state", "action", "ee_pos", "object_poses", "contacts", "images", "time")}
         t_sim = t_render = 0.0
         touched_since = np.zeros(len(self._object_entities), dtype=bool)
 
-        def record(action: np.ndarray) -> None:
+        def record(step: int) -> None:
             nonlocal t_render, touched_since
             t0 = time.perf_counter()
             rec["images"].append(self._render())
             t_render += time.perf_counter() - t0
             rec["state"].append(np.asarray(self._arm.qpos, dtype=np.float32))
-            rec["action"].append(action.astype(np.float32))
+            rec["time"].append(step / s.control_freq)
             rec["ee_pos"].append(np.asarray(self._tool.entity_pose.p, dtype=np.float32))
             rec["object_poses"].append(self._object_poses().astype(np.float32))
             rec["contacts"].append(touched_since.astype(np.float32))
             touched_since = np.zeros_like(touched_since)
 
-        record(self.home)
+        record(0)
         touched_any = np.zeros_like(touched_since)
         t0 = time.perf_counter()
         i, n = 0, len(schedule)
@@ -316,18 +288,22 @@ class World:
                 touched_since |= touching
                 touched_any |= touching
             if i == n and extra_settle > 0 and not self._at_rest():
-                # keep settling while something still moves (a rolling can, a falling box)
-                schedule = np.concatenate([schedule, self.home[None]])
-                n, extra_settle = n + 1, extra_settle - 1
+                # keep settling, one frame at a time, while something still moves (a rolling can, a falling box)
+                schedule = np.concatenate([schedule, np.repeat(self.home[None], per_frame, axis=0)])
+                n, extra_settle = n + per_frame, extra_settle - per_frame
             if i % per_frame == 0 and i < n:
                 t_sim += time.perf_counter() - t0
-                record(target)
+                record(i)
                 t0 = time.perf_counter()
         # The behaviour image is taken with the arm exactly at home, so only the scene's change shows.
         self._arm.qpos = self.home
         self._arm.qvel = np.zeros(self.kin.dof)
         t_sim += time.perf_counter() - t0
-        record(self.home)
+        record(n)
+        # action[t]: the joint target in force when frame t + 1 is taken, i.e. sent after observing frame t
+        # (LeRobot's convention); after the last frame the arm holds home
+        rec["action"] = [schedule[k * per_frame - 1].astype(np.float32) for k in range(1, len(rec["state"]))]
+        rec["action"].append(self.home.astype(np.float32))
 
         frames = Frames(**{k: np.stack(v) for k, v in rec.items()})
         final = frames.object_poses[-1].astype(np.float64)

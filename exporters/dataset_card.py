@@ -1,0 +1,76 @@
+"""The dataset card: README.md at the dataset root, LeRobot's own card template filled in, so that pushing the
+dataset to a hub gives a page that says what it holds and how it was made."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+CARD = "README.md"
+LICENSE = "mit"  # babblegen's license; the data is simulated, nobody else's recording
+PAPER = (
+    "Maestre, Cully, Gonzales, Doncieux: Bootstrapping interactions with objects from raw sensorimotor data: "
+    "a Novelty Search based approach"
+)
+CITATION = """@misc{maestre_noveb,
+  title  = {Bootstrapping interactions with objects from raw sensorimotor data: a Novelty Search based approach},
+  author = {Maestre, Carlos and Cully, Antoine and Gonzales, Christophe and Doncieux, Stephane}
+}"""
+
+
+def card_text(info: dict[str, Any], run_info: dict[str, Any], counters: dict[str, int]) -> str:
+    """The card for a dataset with LeRobot metadata ``info`` (meta/info.json) made by the run ``run_info``."""
+    from lerobot.datasets.utils import create_lerobot_dataset_card
+
+    class _Info(dict):  # create_lerobot_dataset_card calls .to_dict() on LeRobot's DatasetInfo
+        def to_dict(self) -> dict[str, Any]:
+            return dict(self)
+
+    cfg = run_info["config"]
+    objects = ", ".join(o["name"] for o in run_info["task"]["objects"])
+    explorer = {"noveb": "Novelty-driven Evolutionary Babbling (NovEB)", "random": "random motor babbling"}
+    description = f"""Interaction data that nobody scripted, made by babblegen
+{run_info["versions"].get("babblegen", "")} with
+{explorer.get(cfg["explorer"], cfg["explorer"])} in the simulated scene `{cfg["task"]}`: a PR2-like 7-DoF arm
+(`{info.get("robot_type")}`) at a table with {objects}, simulated with SAPIEN 3 / ManiSkill 3 and rendered on the CPU.
+
+- **Episodes:** {counters["executed"]} executed movements out of {counters["attempts"]} attempted
+  ({counters["contacts"]} touched an object), {counters["generations"]} generations, seed {cfg["seed"]}.
+- **Frames:** {info.get("fps")} per second; `observation.images.head` is the head camera
+  ({cfg["world"]["camera_width"]}x{cfg["world"]["camera_height"]}); `observation.state` the 7 joint positions;
+  `action` the joint targets sent after observing each frame (LeRobot's convention: `action[t]` leads to
+  `observation.state[t+1]`); `observation.ee_pos` the tool point; `observation.environment_state` every object's
+  pose (x, y, z, qw, qx, qy, qz); `observation.contacts` which objects the arm touched since the previous frame.
+- **Task string:** "{run_info.get("episode_task", "")}".
+- **Every attempt**, infeasible ones included, with its genome, descriptor, novelty and contacts:
+  `babblegen/attempts.jsonl`; the full configuration and software versions: `babblegen/run.json`.
+
+Made with: `{" ".join(run_info.get("command") or [])}`
+
+Configuration:
+
+```json
+{json.dumps(cfg, indent=2)}
+```
+"""
+    card = create_lerobot_dataset_card(
+        tags=["babblegen", "NovEB", "motor-babbling", "novelty-search", "simulation", "world-model"],
+        dataset_info=_Info(info),
+        license=LICENSE,
+        repo_id=run_info.get("repo_id"),
+        dataset_description=description,
+        paper=PAPER,
+        citation_bibtex=CITATION,
+    )
+    return str(card)
+
+
+def write_card(root: Path, run_info: dict[str, Any], counters: dict[str, int]) -> Path:
+    """Write (or refresh) ROOT/README.md from meta/info.json and the run's state."""
+    from babblegen.exporters.lerobot import atomic_write
+
+    root = Path(root)
+    info = json.loads((root / "meta" / "info.json").read_text())
+    atomic_write(root / CARD, card_text(info, run_info, counters).encode())
+    return root / CARD
