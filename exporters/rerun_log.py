@@ -11,7 +11,7 @@ Entities:
     world/table, world/obstacles/<name>                                     the static scene
     world/robot/base/*, world/robot/arm/{box,sphere,cylinder}              the arm (posed per frame by FK)
     world/objects/<name> (pose per frame), world/objects/<name>/shape       objects in their own colours
-    world/head_camera (pinhole), world/head_camera/image                   head-camera frames (JPEG)
+    world/head_camera (pose and pinhole frustum), head_camera/image        head-camera frames (JPEG)
     world/tool (red while touching), world/tool_path, world/tool_waypoints  the tool point, its path, its targets
     world/object_paths, world/contact_events                                object paths, where contacts happened
     contacts, state                                                         per-frame scalars (object, joint)
@@ -57,6 +57,12 @@ TOOL_COLOR = (40, 180, 60, 255)
 CONTACT_COLOR = (230, 30, 30, 255)
 WAYPOINT_COLOR = (255, 140, 0, 255)
 OBSTACLE_COLOR = (235, 230, 217, 255)
+
+
+# The frames are logged outside the pinhole's subtree: under a Pinhole, the viewer (0.41, software rendering)
+# draws an image black, in the 2D view and as a black quad that hides the table in the 3D view (checked with
+# scripts/viewer_screenshot.sh). The frustum stays in the 3D scene.
+HEAD_IMAGE = "head_camera/image"
 
 
 def urdf_path(robot_uid: str = "pr2_like_arm") -> Path:
@@ -476,7 +482,7 @@ class EpisodeColumns:
             blobs = [b for i in with_images for b in eps[i].jpegs]
             img_idx = [_time_column(k, cat([eps[i].times[k] for i in with_images])) for k in names]
             rec.send_columns(
-                "world/head_camera/image",
+                HEAD_IMAGE,
                 indexes=img_idx,
                 columns=rr.EncodedImage.columns(blob=blobs, media_type=["image/jpeg"] * len(blobs)),
             )
@@ -712,7 +718,7 @@ def blueprint(timeline: str = "index"):
                 ),
             ),
             rrb.Vertical(
-                rrb.Spatial2DView(origin="world/head_camera", name="Head camera"),
+                rrb.Spatial2DView(origin=HEAD_IMAGE.rsplit("/", 1)[0], name="Head camera"),
                 rrb.Spatial3DView(
                     origin="overview",
                     name="Final tool and object positions, from above",

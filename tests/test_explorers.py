@@ -336,3 +336,17 @@ def test_max_new_caps_a_batch():
     assert [c.index for c in ex.ask(max_new=1)] == [0, 1, 2, 3, 4]  # the open batch is re-issued as it is
     ex.tell(cands, [fake_descriptor(c.genome) for c in cands])
     assert ex.ask()[0].index == 5
+
+
+def test_max_waypoints_stops_extension_and_is_off_by_default():
+    assert NovEBConfig().max_waypoints is None  # the paper: genomes grow without bound
+    capped = make_noveb(extend_prob=1.0, max_waypoints=3)
+    free = make_noveb(extend_prob=1.0)
+    lengths = {"capped": set(), "free": set()}
+    for name, ex in (("capped", capped), ("free", free)):
+        for _ in range(6):
+            cands = ex.ask()
+            lengths[name] |= {len(c.genome) for c in cands}
+            ex.tell(cands, [fake_descriptor(c.genome) for c in cands])
+    assert max(lengths["capped"]) == 3
+    assert max(lengths["free"]) > 3

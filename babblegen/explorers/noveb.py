@@ -57,6 +57,7 @@ class NovEBConfig:
     archive_policy: str = field(default="most_novel_unseen")
     tie_break: str = "newest"
     reuse_clones: bool = True
+    max_waypoints: int | None = None  # extension stops at this many waypoints (None: unbounded, the paper)
 
     def __post_init__(self) -> None:
         if int(self.population) != self.population or self.population < 2:
@@ -149,7 +150,7 @@ class NovEB(ArchiveExplorer):
                 g = crossover(g, self._parents[int(mates[i])], self.rng)
             if draws[i, 1] < cfg.mutation_prob:
                 g = gaussian_mutation(g, cfg.sigma, self.rng)
-            if draws[i, 2] < cfg.extend_prob:
+            if draws[i, 2] < cfg.extend_prob and (cfg.max_waypoints is None or len(g) < cfg.max_waypoints):
                 g = extend(g, self.start_norm, self.rng)
             children.append((np.array(g, dtype=np.float64), int(self._parent_index[p])))
         return children
