@@ -4,13 +4,10 @@ another object). Objects are light enough to move on contact."""
 
 from __future__ import annotations
 
-from mani_skill.utils.registration import register_env
-
 from babblegen.scene import CameraSpec, ObjectSpec, TaskSpec, WorkspaceBox
 from babblegen.world.collision import Box
 
 from .registry import register_task
-from .tabletop import TabletopEnv
 
 TABLE_TOP = 0.70
 
@@ -33,8 +30,3 @@ SPEC = register_task(
         camera=CameraSpec(eye=(0.05, 0.0, 1.32), target=(0.88, -0.08, TABLE_TOP), fov=0.92),
     )
 )
-
-
-@register_env(SPEC.env_id, max_episode_steps=100_000)
-class NovEBTabletopEnv(TabletopEnv):
-    task_spec = SPEC

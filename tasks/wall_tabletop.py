@@ -9,14 +9,11 @@ reached only by coming down behind the wall or sweeping in from its open end.
 
 from __future__ import annotations
 
-from mani_skill.utils.registration import register_env
-
 from babblegen.scene import CameraSpec, ObjectSpec, TaskSpec
 from babblegen.world.collision import Box
 
 from .noveb_tabletop import SPEC as PAPER_SCENE
 from .registry import register_task
-from .tabletop import TabletopEnv
 
 TABLE_TOP = PAPER_SCENE.table_top
 WALL_HEIGHT = 0.06
@@ -40,8 +37,3 @@ SPEC = register_task(
         extra_obstacles=(Box("wall", (0.78, -0.35, TABLE_TOP + WALL_HEIGHT / 2), (0.01, 0.15, WALL_HEIGHT / 2)),),
     )
 )
-
-
-@register_env(SPEC.env_id, max_episode_steps=100_000)
-class WallTabletopEnv(TabletopEnv):
-    task_spec = SPEC

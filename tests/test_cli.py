@@ -326,3 +326,17 @@ def test_a_full_disk_stops_with_one_clear_line_and_resume_completes(tmp_path):
         assert ds.meta.total_episodes == sum(bool(r["feasible"]) for r in rows)
     finally:
         subprocess.run(["umount", "-l", str(disk)], capture_output=True)
+
+
+def test_help_and_config_do_not_load_the_simulator():
+    code = (
+        "import sys\n"
+        "from babblegen.cli import build_parser\n"
+        "from babblegen.config import RunConfig\n"
+        "build_parser(); RunConfig().validate()\n"
+        "loaded = {m.split('.')[0] for m in sys.modules}\n"
+        "heavy = sorted(loaded & {'sapien', 'mani_skill', 'torch', 'ompl', 'lerobot'})\n"
+        "assert not heavy, heavy\n"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr

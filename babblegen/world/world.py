@@ -27,7 +27,9 @@ class World:
     """Executes commands in a task's scene. Not thread-safe: one World per process."""
 
     def __init__(self, task: TaskSpec, settings: WorldSettings | None = None, seed: int = 0):
-        from babblegen.tasks import pr2_arm  # noqa: F401  (registers the env's agent and scenes)
+        from babblegen.tasks import envs, pr2_arm
+
+        envs.register_envs()  # the agent, and an env for every registered scene
 
         self.task = task
         self.settings = s = settings or WorldSettings()
