@@ -47,10 +47,6 @@ class RunConfig:
         except TypeError as e:
             raise ConfigError(str(e)) from None
 
-    @property
-    def total_generations(self) -> int:
-        return self.noveb.generations
-
     def explorer_config(self) -> dict[str, Any]:
         """The chosen explorer's options: NovEB's whole section; for random babbling, the batch size, number
         of batches and novelty measurement, taken from the same section so the two runs compare."""

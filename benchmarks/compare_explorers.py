@@ -49,7 +49,7 @@ def run_one(explorer_name: str, seed: int, attempts: int, out: str, options: dic
     path = Path(out) / f"{label}.jsonl"
     t0, clones = time.perf_counter(), 0
     with open(path, "w") as f:
-        while ex.attempts_asked < attempts and ex.generation < 10**9:
+        while ex.attempts_asked < attempts:
             cands = ex.ask(max_new=attempts - ex.attempts_asked)
             rollouts = ev.evaluate([command_for(c) for c in cands], [c.index for c in cands])
             codes = [desc(r.after_image) if r.feasible else None for r in rollouts]
