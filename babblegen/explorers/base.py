@@ -8,6 +8,7 @@ descriptors (packed bit codes), never the simulator's ground truth.
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from typing import Any
@@ -50,8 +51,33 @@ class Clone:
 
 
 def genome_key(kind: str, genome: np.ndarray) -> str:
-    """Exact identity of a command: equal keys mean the same movement (the world is deterministic)."""
-    return f"{kind}:{np.ascontiguousarray(genome, dtype=np.float64).tobytes().hex()}"
+    """Identity of a command: equal keys mean the same movement (the world is deterministic). A 128-bit digest
+    of the exact float64 bytes, so the run state stays small however long genomes grow."""
+    raw = np.ascontiguousarray(genome, dtype=np.float64).tobytes()
+    return f"{kind}:{hashlib.blake2b(raw, digest_size=16).hexdigest()}"
+
+
+def _pack_outcomes(outcomes: dict[str, tuple[int, np.ndarray | None]]) -> dict[str, Any]:
+    """The genome -> (attempt, descriptor) memo as parallel arrays (infeasible: a zero row, feasible False)."""
+    width = next((len(d) for _, d in outcomes.values() if d is not None), 0)
+    codes = np.zeros((len(outcomes), width), dtype=np.uint64)
+    for row, (_, d) in enumerate(outcomes.values()):
+        if d is not None:
+            codes[row] = d
+    return {
+        "keys": list(outcomes),
+        "attempts": np.array([i for i, _ in outcomes.values()], dtype=np.int64),
+        "feasible": np.array([d is not None for _, d in outcomes.values()], dtype=bool),
+        "codes": codes,
+    }
+
+
+def _unpack_outcomes(packed: dict[str, Any]) -> dict[str, tuple[int, np.ndarray | None]]:
+    codes = np.asarray(packed["codes"], dtype=np.uint64)
+    return {
+        key: (int(i), codes[row].copy() if ok else None)
+        for row, (key, i, ok) in enumerate(zip(packed["keys"], packed["attempts"], packed["feasible"], strict=True))
+    }
 
 
 @dataclass
@@ -202,7 +228,7 @@ class ArchiveExplorer(Explorer):
             "asked": self._asked,
             "pending": [dataclasses.asdict(c) for c in self._pending],
             "pending_clones": [dataclasses.asdict(c) for c in self._pending_clones],
-            "outcomes": {k: [i, None if d is None else d.copy()] for k, (i, d) in self._outcomes.items()},
+            "outcomes": _pack_outcomes(self._outcomes),
             "archive": self.archive.state_dict(),
             **self._extra_state(),
         }
@@ -218,10 +244,7 @@ class ArchiveExplorer(Explorer):
         self._pending = [Candidate(**{**c, "genome": np.array(c["genome"])}) for c in state["pending"]]
         self._pending_clones = [Clone(**{**c, "genome": np.array(c["genome"])}) for c in state["pending_clones"]]
         self._asked = bool(state["asked"])
-        self._outcomes = {
-            key: (int(i), None if d is None else np.asarray(d, dtype=np.uint64))
-            for key, (i, d) in state["outcomes"].items()
-        }
+        self._outcomes = _unpack_outcomes(state["outcomes"])
         self.archive = Archive()
         self.archive.load_state_dict(state["archive"])
         self._load_extra_state(state)
