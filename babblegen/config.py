@@ -4,6 +4,7 @@ validated before anything is written, and stored with every dataset."""
 from __future__ import annotations
 
 import dataclasses
+import json
 import tomllib
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -42,6 +43,7 @@ class RunConfig:
             raise ConfigError(f"unknown config keys: {', '.join(sorted(unknown))}")
         noveb = _sub(NovEBConfig, data.pop("noveb", {}), "noveb")
         world = _sub(WorldSettings, data.pop("world", {}), "world")
+        _check_types(cls, data, "")
         try:
             return cls(noveb=noveb, world=world, **data)
         except TypeError as e:
@@ -90,6 +92,30 @@ class RunConfig:
             raise ConfigError(f"workers must be at least 1, got {self.workers}")
 
 
+RESUME_MAY_CHANGE = ("max_attempts", "generations", "workers", "ray", "rerun", "checkpoint_every")
+
+
+def resumed_config(stored: dict[str, Any], overrides: dict[str, Any] | None = None) -> RunConfig:
+    """The configuration a resumed run continues with: the stored one, extended (``generations``,
+    ``max_attempts``) or run differently (workers, Ray, Rerun, commit interval) by ``overrides``, a flat dict
+    of setting names from any section. Changing anything that would change the results is refused."""
+    data = json.loads(json.dumps(stored))  # a deep copy
+    for key, value in (overrides or {}).items():
+        if value is None:
+            continue
+        section = next((sec for sec in (data, data["noveb"], data["world"]) if key in sec), None)
+        if section is None:
+            raise ConfigError(f"unknown setting {key!r}")
+        if section[key] == value:
+            continue
+        if key not in RESUME_MAY_CHANGE:
+            raise ConfigError(f"--resume cannot change {key!r} of an existing run (stored: {section[key]!r})")
+        section[key] = value
+    config = RunConfig.from_dict(data)
+    config.validate()
+    return config
+
+
 def _sub(cls: type, values: dict[str, Any] | Any, section: str) -> Any:
     if dataclasses.is_dataclass(values):
         return values
@@ -98,10 +124,30 @@ def _sub(cls: type, values: dict[str, Any] | Any, section: str) -> Any:
     unknown = set(values) - {f.name for f in dataclasses.fields(cls)}
     if unknown:
         raise ConfigError(f"unknown keys in [{section}]: {', '.join(sorted(unknown))}")
+    _check_types(cls, values, f"[{section}] ")
     try:
         return cls(**values)
     except (TypeError, ValueError) as e:
         raise ConfigError(f"[{section}] {e}") from None
+
+
+_SCALARS = {"int": (int,), "float": (int, float), "bool": (bool,), "str": (str,)}
+
+
+def _check_types(cls: type, values: dict[str, Any], where: str) -> None:
+    """Refuse a TOML value of the wrong type (a string seed, a fractional fps) before it reaches the run."""
+    for f in dataclasses.fields(cls):
+        if f.name not in values or dataclasses.is_dataclass(values[f.name]):
+            continue
+        value, kinds = values[f.name], str(f.type).replace(" ", "").split("|")
+        if value is None and "None" in kinds:
+            continue
+        allowed = tuple(t for k in kinds for t in _SCALARS.get(k, ()))
+        if not allowed:
+            continue  # a type this check does not know: the dataclass validates it
+        if not isinstance(value, allowed) or (isinstance(value, bool) and bool not in allowed):
+            expected = " or ".join(k for k in kinds if k != "None") + (" or none" if "None" in kinds else "")
+            raise ConfigError(f"{where}{f.name} must be {expected}, got {value!r}")
 
 
 def load_toml(path: str | Path) -> dict[str, Any]:
@@ -121,6 +167,8 @@ def merge(base: dict[str, Any], override: dict[str, Any]) -> dict[str, Any]:
         if v is None:
             continue
         if isinstance(v, dict):
+            if k in out and not isinstance(out[k], dict):
+                raise ConfigError(f"[{k}] must be a table, got {out[k]!r}")
             out[k] = merge(out.get(k) or {}, v)
         else:
             out[k] = v

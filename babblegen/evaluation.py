@@ -24,11 +24,12 @@ def seeded_rollout(world: World, command: Command, run_seed: int, attempt: int) 
 def arm_info(task: TaskSpec) -> dict:
     """What the explorers need to know about the arm, from its URDF alone (no simulator): joint names and
     limits, and the home tool position in normalised workspace coordinates."""
-    from babblegen.tasks import pr2_arm
+    from babblegen.tasks import get_robot
     from babblegen.world.kinematics import ArmKinematics, UrdfModel
 
-    kin = ArmKinematics(UrdfModel.load(pr2_arm.URDF_PATH), pr2_arm.BASE_LINK, pr2_arm.TOOL_LINK)
-    home_tool = kin.tool_position(pr2_arm.HOME_QPOS)[0]
+    robot = get_robot(task.robot_uid)
+    kin = ArmKinematics(UrdfModel.load(robot.urdf), robot.base_link, robot.tool_link)
+    home_tool = kin.tool_position(np.asarray(robot.home_qpos))[0]
     return {"joints": kin.joint_names, "limits": kin.limits, "start_norm": task.workspace.to_norm(home_tool)}
 
 

@@ -3,8 +3,9 @@
 Each worker builds one World and keeps its simulator and renderer warm. Work is handed out one rollout at a
 time to whichever worker is free; results come back in submission order. Rollouts are seeded from the run
 seed and the attempt index (see `seeded_rollout`), so the dataset does not depend on the number of workers.
-A worker that dies or exceeds the per-rollout timeout is replaced and the rollout retried; each such event is
-counted (`failures`) and reported with the attempt.
+One scheduling-and-retry loop (`PoolEvaluator`) serves both backends: a worker that dies, raises or exceeds the
+per-rollout timeout is replaced and the rollout retried; each such event is counted (`failures`) and reported
+with the attempt.
 
 `submit` returns at once and hands the batch to a dispatch thread, which keeps every worker busy while the run
 loop writes the previous generation's episodes; `collect` waits for that thread. Without the thread, work would
@@ -19,9 +20,10 @@ import multiprocessing as mp
 import os
 import threading
 import time
+import traceback
 from abc import abstractmethod
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from multiprocessing.connection import wait
 
 from babblegen.config import ConfigError, RunConfig
@@ -34,7 +36,8 @@ log = logging.getLogger(__name__)
 
 
 def _worker_main(conn, task_name: str, settings: WorldSettings, run_seed: int) -> None:
-    """Worker loop: build a World once, then answer (attempt, command) requests until told to stop."""
+    """Worker loop: build a World once, then answer (attempt, command) requests until told to stop. A Python
+    error in a rollout is sent back (the coordinator replaces this worker and retries, as for a crash)."""
     os.environ.setdefault("LP_NUM_THREADS", "1")  # one rendering thread per worker process
     import torch
 
@@ -50,7 +53,10 @@ def _worker_main(conn, task_name: str, settings: WorldSettings, run_seed: int) -
         if msg is None:
             break
         attempt, command = msg
-        conn.send((attempt, seeded_rollout(world, command, run_seed, attempt)))
+        try:
+            conn.send(("ok", seeded_rollout(world, command, run_seed, attempt)))
+        except Exception:
+            conn.send(("error", traceback.format_exc(limit=-3)))
     world.close()
 
 
@@ -105,34 +111,113 @@ class _Cancelled(Exception):
 
 
 @dataclass
+class Failure:
+    """A rollout that did not come back: its worker died, raised, or was lost."""
+
+    reason: str
+
+
+class PoolEvaluator(_BatchThread):
+    """One scheduling-and-retry loop over ``n`` worker slots of a backend (processes or Ray actors).
+
+    Work goes one rollout at a time to whichever slot is free. The one failure policy: a rollout whose worker
+    dies, raises a Python error or exceeds ``timeout`` seconds is counted (``failures``, and the attempt's
+    ``worker_failures``), its worker is replaced by a fresh one, and it is retried, at most ``retries`` times;
+    then the run stops with an error naming the attempt. Subclasses implement the four slot operations.
+    """
+
+    kind = "worker"
+
+    def __init__(self, n: int, timeout: float = 300.0, retries: int = 2):
+        self.n, self.timeout, self.max_retries = n, timeout, retries
+        self.failures = 0
+
+    @abstractmethod
+    def _send(self, slot: int, attempt: int, command: Command) -> None:
+        """Start one rollout on a free slot."""
+
+    @abstractmethod
+    def _wait(self, busy: list[int], timeout: float) -> list[tuple[int, Rollout | Failure]]:
+        """Outcomes of the busy slots that finished within ``timeout`` seconds (possibly none)."""
+
+    @abstractmethod
+    def _replace(self, slot: int) -> None:
+        """Put a fresh worker in the slot."""
+
+    def _started(self, slot: int, job: tuple[int, Command] | None) -> None:  # noqa: B027  (optional hook)
+        """Called when a slot takes (``job``) or leaves (``None``) a rollout."""
+
+    def _run_batch(self, commands: list[Command], attempts: list[int]) -> list[Rollout]:
+        results: dict[int, Rollout] = {}
+        retries: dict[int, int] = {}
+        queue = deque(range(len(commands)))
+        jobs: dict[int, tuple[int, float]] = {}  # slot -> (index in the batch, start time)
+
+        def failed(slot: int, i: int, reason: str) -> None:
+            self.failures += 1
+            retries[i] = retries.get(i, 0) + 1
+            giving_up = retries[i] > self.max_retries
+            log.warning(
+                "rollout %s for attempt %d %s; replacing it, %s",
+                self.kind,
+                attempts[i],
+                reason,
+                "giving up" if giving_up else "retrying",
+            )
+            if giving_up:
+                raise RuntimeError(f"attempt {attempts[i]} failed on {retries[i]} {self.kind}s: {reason}")
+            self._replace(slot)
+            queue.appendleft(i)
+
+        while len(results) < len(commands):
+            if self._closing:
+                raise _Cancelled
+            for slot in range(self.n):
+                if slot not in jobs and queue:
+                    i = queue.popleft()
+                    jobs[slot] = (i, time.monotonic())
+                    self._started(slot, (i, commands[i]))
+                    self._send(slot, attempts[i], commands[i])
+            for slot, outcome in self._wait(list(jobs), timeout=1.0):
+                i, _ = jobs.pop(slot)
+                self._started(slot, None)
+                if isinstance(outcome, Failure):
+                    failed(slot, i, outcome.reason)
+                else:
+                    results[i] = outcome
+            now = time.monotonic()
+            for slot, (i, start) in list(jobs.items()):
+                if now - start > self.timeout:
+                    del jobs[slot]
+                    self._started(slot, None)
+                    failed(slot, i, f"timed out after {self.timeout:.0f} s")
+        out = [results[i] for i in range(len(commands))]
+        for i, r in enumerate(out):
+            r.timings["worker_failures"] = float(retries.get(i, 0))
+        return out
+
+
+@dataclass
 class _Worker:
     process: mp.Process
     conn: object
     job: tuple[int, Command] | None = None
-    started: float = 0.0
 
 
-@dataclass
-class _Batch:
-    commands: list[Command]
-    attempts: list[int]
-    results: dict[int, Rollout] = field(default_factory=dict)
-    retries: dict[int, int] = field(default_factory=dict)
+class ProcessEvaluator(PoolEvaluator):
+    """``n`` local worker processes."""
 
-
-class ProcessEvaluator(_BatchThread):
-    """`n` local worker processes."""
+    kind = "worker process"
 
     def __init__(
         self, task: TaskSpec, settings: WorldSettings, run_seed: int, n: int, timeout: float = 300.0, retries: int = 2
     ):
+        super().__init__(n, timeout, retries)
         self.task, self.settings, self.run_seed = task, settings, run_seed
-        self.timeout, self.max_retries = timeout, retries
         self.ctx = mp.get_context("spawn")
         self.workers = [self._spawn() for _ in range(n)]
         for w in self.workers:
             self._await_ready(w)
-        self.failures = 0
 
     def _spawn(self) -> _Worker:
         parent, child = self.ctx.Pipe()
@@ -149,62 +234,35 @@ class ProcessEvaluator(_BatchThread):
         tag, _ = w.conn.recv()
         assert tag == "ready"
 
-    def _replace(self, w: _Worker) -> None:
+    def _started(self, slot: int, job: tuple[int, Command] | None) -> None:
+        self.workers[slot].job = job
+
+    def _send(self, slot: int, attempt: int, command: Command) -> None:
+        self.workers[slot].conn.send((attempt, command))
+
+    def _wait(self, busy: list[int], timeout: float) -> list[tuple[int, Rollout | Failure]]:
+        ws = [self.workers[s] for s in busy]
+        ready = wait([w.conn for w in ws] + [w.process.sentinel for w in ws], timeout=timeout)
+        out: list[tuple[int, Rollout | Failure]] = []
+        for slot, w in zip(busy, ws, strict=True):
+            if w.conn in ready:
+                try:
+                    status, value = w.conn.recv()
+                except (EOFError, OSError):
+                    out.append((slot, Failure("died")))
+                    continue
+                out.append((slot, value if status == "ok" else Failure(f"raised an error:\n{value}")))
+            elif w.process.sentinel in ready or not w.process.is_alive():
+                out.append((slot, Failure("died")))
+        return out
+
+    def _replace(self, slot: int) -> None:
+        w = self.workers[slot]
         w.process.kill()
         w.process.join(5)
         fresh = self._spawn()
         self._await_ready(fresh)
-        w.process, w.conn, w.job = fresh.process, fresh.conn, None
-
-    def _dispatch(self, b: _Batch, queue: deque) -> None:
-        for w in self.workers:
-            if w.job is None and queue:
-                i = queue.popleft()
-                w.job = (i, b.commands[i])
-                w.started = time.monotonic()
-                w.conn.send((b.attempts[i], b.commands[i]))
-
-    def _run_batch(self, commands: list[Command], attempts: list[int]) -> list[Rollout]:
-        b = _Batch(commands, attempts)
-        queue = deque(range(len(commands)))
-        self._dispatch(b, queue)
-        while len(b.results) < len(b.commands):
-            if self._closing:
-                raise _Cancelled
-            busy = [w for w in self.workers if w.job is not None]
-            ready = wait([w.conn for w in busy] + [w.process.sentinel for w in busy], timeout=1.0)
-            now = time.monotonic()
-            for w in busy:
-                died = w.process.sentinel in ready or not w.process.is_alive()
-                if w.conn in ready and not died:
-                    try:
-                        attempt, rollout = w.conn.recv()
-                    except (EOFError, OSError):
-                        died = True
-                    else:
-                        i = w.job[0]
-                        b.results[i] = rollout
-                        w.job = None
-                        continue
-                if died or now - w.started > self.timeout:
-                    i = w.job[0]
-                    self.failures += 1
-                    b.retries[i] = b.retries.get(i, 0) + 1
-                    log.warning(
-                        "rollout worker %s for attempt %d (%s); replacing it",
-                        "died" if died else "timed out",
-                        b.attempts[i],
-                        "retrying" if b.retries[i] <= self.max_retries else "giving up",
-                    )
-                    if b.retries[i] > self.max_retries:
-                        raise RuntimeError(f"attempt {b.attempts[i]} failed on {b.retries[i]} workers")
-                    self._replace(w)
-                    queue.appendleft(i)
-            self._dispatch(b, queue)
-        out = [b.results[i] for i in range(len(b.commands))]
-        for i, r in enumerate(out):
-            r.timings["worker_failures"] = float(b.retries.get(i, 0))
-        return out
+        self.workers[slot] = fresh
 
     def close(self) -> None:
         self._stop_dispatch()
@@ -217,8 +275,10 @@ class ProcessEvaluator(_BatchThread):
                 w.process.kill()
 
 
-class RayEvaluator(_BatchThread):
-    """One Ray actor per worker, each with its own World; same semantics as ProcessEvaluator."""
+class RayEvaluator(PoolEvaluator):
+    """One Ray actor per worker slot, each with its own World; same scheduling and failure policy."""
+
+    kind = "Ray actor"
 
     def __init__(
         self,
@@ -244,6 +304,7 @@ class RayEvaluator(_BatchThread):
                 log.info("no running Ray cluster; starting a local one")
                 ray.init(address=None, **options)
         n = n or max(int(ray.cluster_resources().get("CPU", 1)), 1)
+        super().__init__(n, timeout, retries)
 
         @ray.remote(num_cpus=1, max_restarts=0)
         class RolloutActor:
@@ -270,52 +331,36 @@ class RayEvaluator(_BatchThread):
         self._args = (task.name, settings, run_seed)
         self.actors = [self._actor_cls.remote(*self._args) for _ in range(n)]
         ray.get([a.ping.remote() for a in self.actors])
-        self.timeout, self.max_retries = timeout, retries
-        self.failures = 0
+        self._refs: dict[int, object] = {}
 
-    def _run_batch(self, commands: list[Command], attempts: list[int]) -> list[Rollout]:
+    def _send(self, slot: int, attempt: int, command: Command) -> None:
+        self._refs[slot] = self.actors[slot].rollout.remote(attempt, command)
+
+    def _wait(self, busy: list[int], timeout: float) -> list[tuple[int, Rollout | Failure]]:
         ray = self.ray
-        results: dict[int, Rollout] = {}
-        retries: dict[int, int] = {}
-        queue = deque(range(len(commands)))
-        running: dict = {}  # object ref -> (index, actor, start)
-        idle = list(self.actors)
-        while len(results) < len(commands):
-            if self._closing:
-                raise _Cancelled
-            while idle and queue:
-                i, actor = queue.popleft(), idle.pop()
-                running[actor.rollout.remote(attempts[i], commands[i])] = (i, actor, time.monotonic())
-            done, _ = ray.wait(list(running), num_returns=1, timeout=1.0)
-            now = time.monotonic()
-            for ref in list(running):
-                i, actor, start = running[ref]
-                if ref in done:
-                    del running[ref]
-                    try:
-                        results[i] = ray.get(ref)
-                        idle.append(actor)
-                        continue
-                    except ray.exceptions.RayActorError:
-                        pass
-                elif now - start <= self.timeout:
-                    continue
-                else:
-                    del running[ref]
-                self.failures += 1
-                retries[i] = retries.get(i, 0) + 1
-                log.warning("Ray rollout actor failed on attempt %d; replacing it", attempts[i])
-                if retries[i] > self.max_retries:
-                    raise RuntimeError(f"attempt {attempts[i]} failed on {retries[i]} actors")
-                ray.kill(actor)
-                fresh = self._actor_cls.remote(*self._args)
-                self.actors[self.actors.index(actor)] = fresh
-                idle.append(fresh)
-                queue.appendleft(i)
-        out = [results[i] for i in range(len(commands))]
-        for i, r in enumerate(out):
-            r.timings["worker_failures"] = float(retries.get(i, 0))
+        refs = {self._refs[s]: s for s in busy}
+        if not refs:
+            time.sleep(min(timeout, 0.05))
+            return []
+        ready, _ = ray.wait(list(refs), num_returns=1, timeout=timeout)
+        if ready:  # and whatever else has finished meanwhile
+            ready, _ = ray.wait(list(refs), num_returns=len(refs), timeout=0)
+        out: list[tuple[int, Rollout | Failure]] = []
+        for ref in ready:
+            slot = refs[ref]
+            del self._refs[slot]
+            try:
+                out.append((slot, ray.get(ref)))
+            except ray.exceptions.RayActorError as e:
+                out.append((slot, Failure(f"died ({type(e).__name__})")))
+            except ray.exceptions.RayTaskError as e:
+                out.append((slot, Failure(f"raised an error:\n{e}")))
         return out
+
+    def _replace(self, slot: int) -> None:
+        self._refs.pop(slot, None)
+        self.ray.kill(self.actors[slot])
+        self.actors[slot] = self._actor_cls.remote(*self._args)
 
     def close(self) -> None:
         self._stop_dispatch()

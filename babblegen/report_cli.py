@@ -80,7 +80,7 @@ def _has_display() -> bool:
 
 
 def cmd_view(args: argparse.Namespace) -> int:
-    from babblegen.exporters.rerun_log import ViewerError, default_view_file, view_dataset
+    from babblegen.exporters.rerun import ViewerError, default_view_file, view_dataset
 
     root = check_dataset(args.dataset)
     if args.save is not None and args.save.suffix != ".rrd":

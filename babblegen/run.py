@@ -12,7 +12,6 @@ Directory layout of a run (the LeRobot dataset root):
 from __future__ import annotations
 
 import importlib.metadata
-import json
 import os
 import platform
 import shutil
@@ -24,24 +23,13 @@ from typing import Any
 
 import numpy as np
 
-from babblegen.config import ConfigError, RunConfig
-from babblegen.exporters.dataset_card import write_card
-from babblegen.exporters.lerobot import EpisodeWriter, atomic_write, features, rollback
-from babblegen.exporters.sidecar import (
-    ATTEMPTS,
-    CHECKPOINT,
-    CLONES,
-    PREVIOUS_CHECKPOINT,
-    RUN_INFO,
-    AttemptLog,
-    read_run_info,
-    sidecar_dir,
-)
+from babblegen.config import ConfigError, RunConfig, resumed_config
+from babblegen.exporters.sidecar import attempt_row, clone_row
 from babblegen.interrupts import Interrupted, Interrupts
-from babblegen.lock import DatasetLock
-from babblegen.world.rollout import Command, Rollout
+from babblegen.store import RUN_INFO, AttemptRecord, RunStore, read_run_info, sidecar_dir
+from babblegen.world.rollout import Command
 
-FORMAT_VERSION = 1
+FORMAT_VERSION = 1  # of run.json
 PACKAGES = (
     "babblegen",
     "sapien",
@@ -121,25 +109,18 @@ def command_for(candidate) -> Command:
 
 
 class Run:
-    """A babbling run writing to `out`. Build with `Run.start` (new) or `Run.resume`."""
+    """A babbling run writing to ``out``. Build with :meth:`start` (new) or :meth:`resume`, then :meth:`execute`.
+
+    The loop is the paper's: ask the explorer for a generation, roll it out, describe each outcome, tell the
+    explorer, and hand every attempt to the run store, which writes it to every sink and commits them together.
+    """
 
     def __init__(self, out: Path, config: RunConfig, resumed: bool):
         self.out, self.config, self.resumed = Path(out), config, resumed
-        self.counters = {
-            "attempts": 0,
-            "executed": 0,
-            "contacts": 0,
-            "generations": 0,
-            "clones": 0,
-            "worker_failures": 0,
-        }
-        self.writer: EpisodeWriter | None = None
-        self.log: AttemptLog | None = None
-        self.clone_log: AttemptLog | None = None
-        self.sinks: list[Any] = []
-        self.lock = DatasetLock(sidecar_dir(self.out))
+        self.counters = dict.fromkeys(("attempts", "executed", "contacts", "generations", "clones"), 0)
+        self.counters["worker_failures"] = 0
+        self.store = RunStore(self.out)
 
-    # --- construction -------------------------------------------------------------------------------------
     @classmethod
     def start(cls, out: str | Path, config: RunConfig) -> Run:
         out = Path(out)
@@ -149,304 +130,217 @@ class Run:
 
     @classmethod
     def resume(cls, out: str | Path, overrides: dict[str, Any] | None = None) -> Run:
-        """Continue the run at `out` with its stored configuration; `overrides` may extend it (generations,
-        max_attempts) or change how it runs (workers, ray, rerun), nothing that would change its results."""
+        """Continue the run at ``out`` with its stored configuration (see :func:`resumed_config`)."""
         out = Path(out)
         check_output(out, resume=True)
-        info = read_run_info(out)
-        data = info["config"]
-        allowed = {"max_attempts", "generations", "workers", "ray", "rerun", "checkpoint_every"}
-        for key, value in (overrides or {}).items():
-            if value is None:
-                continue
-            section = next((sec for sec in (data, data["noveb"], data["world"]) if key in sec), None)
-            if section is None:
-                raise ConfigError(f"unknown setting {key!r}")
-            if section[key] == value:
-                continue
-            if key not in allowed:
-                raise ConfigError(f"--resume cannot change {key!r} of an existing run (stored: {section[key]!r})")
-            section[key] = value
-        config = RunConfig.from_dict(data)
-        config.validate()
-        return cls(out, config, resumed=True)
+        return cls(out, resumed_config(read_run_info(out)["config"], overrides), resumed=True)
 
-    # --- the loop -----------------------------------------------------------------------------------------
-    def _setup(self):
-        from babblegen.descriptors import make_descriptor
-        from babblegen.evaluation import LocalEvaluator, arm_info
-        from babblegen.explorers import make_explorer
-        from babblegen.tasks import get_task
+    @property
+    def repo_id(self) -> str:
+        return f"babblegen/{self.out.name or 'dataset'}"
+
+    # --- opening --------------------------------------------------------------------------------------------
+    def _build_parts(self) -> None:
+        from babblegen.assembly import build_descriptor, build_evaluator, build_explorer
+        from babblegen.evaluation import arm_info
+        from babblegen.tasks import get_robot, get_task
 
         cfg = self.config
         self.task = get_task(cfg.task)
-        if cfg.workers > 1 or cfg.ray:
-            from babblegen.parallel import make_parallel_evaluator
-
-            self.evaluator = make_parallel_evaluator(self.task, cfg)
-        else:
-            self.evaluator = LocalEvaluator(self.task, cfg.world, cfg.seed)
-        kin_info = arm_info(self.task)
-        self.joint_names = list(kin_info["joints"])
-        self.descriptor = make_descriptor(**cfg.descriptor_config())
-        self.explorer = make_explorer(
-            cfg.explorer,
-            cfg.explorer_config(),
-            rng_seed=cfg.seed,
-            joint_limits=np.asarray(kin_info["limits"]),
-            start_norm=np.asarray(kin_info["start_norm"]),
-        )
+        self.robot = get_robot(self.task.robot_uid)
+        arm = arm_info(self.task)
+        self.joint_names = list(arm["joints"])
+        self.descriptor = build_descriptor(cfg)
+        self.explorer = build_explorer(cfg, arm)
+        self.evaluator = build_evaluator(self.task, cfg)
         self.task_text = f"{cfg.explorer} babbling in {cfg.task}"
-        self.repo_id = f"babblegen/{self.out.name or 'dataset'}"
+
+    def _sinks(self, repo_id: str) -> list[tuple[str, Any]]:
+        """The run's outputs, in the order they receive each attempt (the sidecar row records the LeRobot
+        write time, so it comes after it; the card is refreshed after the dataset's metadata)."""
+        from babblegen.exporters.dataset_card import DatasetCardSink
+        from babblegen.exporters.lerobot import LeRobotSink, features
+        from babblegen.exporters.sidecar import SidecarSink
+
+        cfg, out = self.config, self.out
+        shape = (cfg.world.camera_height, cfg.world.camera_width)
+        create = {
+            "fps": cfg.world.fps,
+            "feats": features(self.joint_names, self.task.object_names, *shape),
+            "robot_type": self.task.robot_uid,
+        }
+        makers: list[tuple[str, Any]] = [
+            ("lerobot", lambda state: LeRobotSink(state, out, repo_id, self.task_text, create)),
+            ("sidecar", lambda state: SidecarSink(state, out)),
+        ]
+        if cfg.rerun:
+            from babblegen.exporters.rerun import RerunSink
+
+            def rerun(state: dict | None) -> RerunSink:
+                if state is None and self.resumed:  # the run was made without recordings: start them here
+                    state = {"episodes": self.counters["executed"], "attempts": self.counters["attempts"]}
+                return RerunSink(out, self.task, self.joint_names, state)
+
+            makers.append(("rerun", rerun))
+        makers.append(("card", lambda state: DatasetCardSink(state, out)))
+        return makers
 
     def _open_new(self) -> None:
-        cfg = self.config
-        sdir = sidecar_dir(self.out)
-        feats = features(self.joint_names, self.task.object_names, cfg.world.camera_height, cfg.world.camera_width)
-        if self.out.exists() and not any(self.out.iterdir()):
-            self.out.rmdir()  # LeRobot refuses an existing root, even an empty one
-        self.writer = EpisodeWriter.create(self.out, self.repo_id, cfg.world.fps, feats, robot_type="pr2_like_arm")
-        sdir.mkdir(parents=True, exist_ok=True)
-        info = {
-            "format_version": FORMAT_VERSION,
-            "repo_id": self.repo_id,
-            "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
-            "command": sys.argv,
-            "config": cfg.to_dict(),
-            "versions": versions(),
-            "task": self.task.to_dict(),
-            "joint_names": self.joint_names,
-            "object_names": self.task.object_names,
-            "episode_task": self.task_text,
-        }
-        atomic_write(sdir / RUN_INFO, json.dumps(info, indent=2, default=_json_default).encode())
-        self.log = AttemptLog(sdir / ATTEMPTS)
-        self.clone_log = AttemptLog(sdir / CLONES)
+        self.store.open_sinks(self._sinks(self.repo_id)[:1])  # LeRobot creates the root directory
+        self.store.write_info(
+            {
+                "format_version": FORMAT_VERSION,
+                "repo_id": self.repo_id,
+                "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+                "command": sys.argv,
+                "config": self.config.to_dict(),
+                "versions": versions(),
+                "task": self.task.to_dict(),
+                "robot": self.robot.to_dict(),
+                "joint_names": self.joint_names,
+                "object_names": self.task.object_names,
+                "episode_task": self.task_text,
+            }
+        )
+        self.store.lock.acquire(self.out)
+        self.store.open_sinks(self._sinks(self.repo_id)[1:])
 
-    def _open_resumed(self) -> None:
-        sdir = sidecar_dir(self.out)
-        if not (sdir / CHECKPOINT).exists() and not (sdir / PREVIOUS_CHECKPOINT).exists():
-            if (sdir / "checkpoint.pkl").exists():
+    def _open_resumed(self, echo) -> None:
+        store = self.store
+        if not store.has_checkpoint():
+            if (store.dir / "checkpoint.pkl").exists():
                 raise ConfigError(
                     f"--resume: {self.out} was made by an older babblegen that stored its state as a pickle, "
                     "which this version does not load (it could run code); start a new run"
                 )
             # died before its first commit point: nothing worth keeping, start the same run afresh
-            keep = sdir / RUN_INFO
-            data = keep.read_bytes()
+            info = store.dir / RUN_INFO
+            data = info.read_bytes()
+            store.lock.release()
             for p in self.out.iterdir():
                 shutil.rmtree(p) if p.is_dir() else p.unlink()
-            self.lock.release()
             self._open_new()
-            atomic_write(keep, data)
-            self.lock.acquire(self.out)
+            info.write_bytes(data)
             return
-        ckpt = self._read_checkpoint(sdir)
-        info = read_run_info(self.out)
-        if info["config"] != self.config.to_dict():  # extended: the stored config says what the run now is
-            info["config"] = self.config.to_dict()
-            info.setdefault("resumed", []).append({"at": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "command": sys.argv})
-            atomic_write(sdir / RUN_INFO, json.dumps(info, indent=2, default=_json_default).encode())
-        rollback(self.out, ckpt["dataset"])
-        AttemptLog.truncate(sdir / ATTEMPTS, ckpt["sidecar_offset"])
-        AttemptLog.truncate(sdir / CLONES, ckpt.get("clones_offset", 0))
+        ckpt = store.read_checkpoint(lambda message: print(f"babblegen: warning: {message}", file=sys.stderr))
+        store.record_extension(self.config.to_dict())
         self.explorer.load_state_dict(ckpt["explorer"])
         self.counters.update(ckpt["counters"])
-        self.writer = EpisodeWriter.reopen(self.out, read_run_info(self.out)["repo_id"])
-        self.log = AttemptLog(sdir / ATTEMPTS)
-        self.clone_log = AttemptLog(sdir / CLONES)
-        for sink in self.sinks:
-            sink.rollback(self.counters["executed"])
-
-    def _read_checkpoint(self, sdir: Path) -> dict[str, Any]:
-        """The last commit point, or the one before it when the last is missing or damaged."""
-        from babblegen.exporters.state_file import StateFileError, loads
-
-        problems = []
-        for name in (CHECKPOINT, PREVIOUS_CHECKPOINT):
-            try:
-                ckpt = loads((sdir / name).read_bytes())
-                missing = {"explorer", "counters", "sidecar_offset", "dataset"} - set(ckpt)
-                if missing:
-                    raise StateFileError(f"missing {', '.join(sorted(missing))}")
-            except (OSError, StateFileError) as e:
-                problems.append(f"{name}: {e}")
-                continue
-            if problems:
-                print(
-                    f"babblegen: warning: {problems[0]}; resuming from the commit point before it",
-                    file=sys.stderr,
-                )
-            return ckpt
-        raise ConfigError(
-            f"--resume: the run state in {sdir} is damaged and there is no earlier commit point to fall back to "
-            f"({'; '.join(problems)}); the episodes written so far still load with LeRobot"
+        store.open_sinks(self._sinks(store.info()["repo_id"]), ckpt["sinks"])
+        echo(
+            f"resuming {self.out} at generation {self.counters['generations']} "
+            f"({self.counters['attempts']} attempts, {self.counters['executed']} episodes)"
         )
 
-    def _commit(self, reopen: bool = True) -> None:
-        record = self.writer.commit() if reopen else (self.writer.finalize() or _snapshot(self.out))
-        for sink in self.sinks:
-            sink.flush()
-        state = {
-            "format_version": FORMAT_VERSION,
-            "explorer": self.explorer.state_dict(),
-            "counters": dict(self.counters),
-            "sidecar_offset": self.log.offset(),
-            "clones_offset": self.clone_log.offset(),
-            "dataset": record,
-        }
-        from babblegen.exporters.state_file import dumps
-
-        sdir = sidecar_dir(self.out)
-        data = dumps(state)
-        if (sdir / CHECKPOINT).exists():
-            os.replace(sdir / CHECKPOINT, sdir / PREVIOUS_CHECKPOINT)  # a crash here resumes from this one
-        atomic_write(sdir / CHECKPOINT, data)
-        write_card(self.out, read_run_info(self.out), self.counters)
-
-    def _row(self, cand, rollout: Rollout, code, evaluation, episode: int | None, seconds: dict) -> dict:
-        names = self.task.object_names
-        row: dict[str, Any] = {
-            "attempt": cand.index,
-            "generation": cand.generation,
-            "explorer": self.config.explorer,
-            "kind": cand.kind,
-            "genome": np.asarray(cand.genome).tolist(),
-            "parent": cand.parent,
-            "feasible": rollout.feasible,
-            "reason": rollout.reason,
-            "episode_index": episode,
-            "descriptor": None if code is None else self.descriptor.hex(code),
-            "novelty": evaluation.novelty,
-            "archived": evaluation.archived,
-            "ee_targets": None if rollout.ee_targets is None else np.round(rollout.ee_targets, 5).tolist(),
-            "planner": rollout.planner,
-        }
-        if rollout.feasible:
-            contact_frames = rollout.frames.contacts.sum(axis=0)
-            row.update(
-                n_frames=len(rollout.frames),
-                touched={n: bool(t) for n, t in zip(names, rollout.touched, strict=True)},
-                contact_frames={n: int(c) for n, c in zip(names, contact_frames, strict=True)},
-                displacement={n: round(float(d), 6) for n, d in zip(names, rollout.displacement, strict=True)},
-                final_poses={n: np.round(p, 6).tolist() for n, p in zip(names, rollout.final_poses, strict=True)},
-                final_ee_pos=self._farthest_ee(rollout),
-            )
-        row["timings"] = {k: round(v, 5) for k, v in {**rollout.timings, **seconds}.items()}
-        return row
-
-    @staticmethod
-    def _farthest_ee(rollout: Rollout) -> list[float]:
-        """The tool position at the trajectory's final waypoint (the paper's Fig. 2 point)."""
-        if rollout.ee_targets is not None:
-            return np.round(rollout.ee_targets[-1], 5).tolist()
-        ee = rollout.frames.ee_pos
-        far = int(np.argmax(np.linalg.norm(ee - ee[0], axis=1)))
-        return np.round(ee[far], 5).tolist()
-
+    # --- running --------------------------------------------------------------------------------------------
     def execute(self, progress: bool = True, echo=print) -> RunSummary:
         """Run to completion or interruption. The dataset is finalized and loads either way."""
         t0 = time.perf_counter()
         if self.resumed:
-            self.lock.acquire(self.out)  # before anything is rolled back: another run may be writing
-        self._setup()
-        if self.config.rerun:
-            from babblegen.exporters.rerun_log import RerunSink
-
-            self.sinks.append(RerunSink(self.out, self.task, self.joint_names))
+            self.store.lock.acquire(self.out)  # before anything is rolled back: another run may be writing
+        self._build_parts()
         try:
-            if self.resumed:
-                self._open_resumed()
-            else:
-                self._open_new()
-                self.lock.acquire(self.out)
+            self._open_resumed(echo) if self.resumed else self._open_new()
         except BaseException:
             self.evaluator.close()
-            self.lock.release()
+            self.store.close()
             raise
-        if self.resumed:
-            echo(
-                f"resuming {self.out} at generation {self.counters['generations']} "
-                f"({self.counters['attempts']} attempts, {self.counters['executed']} episodes)"
-            )
         interrupted = False
         bar = self._progress_bar(progress)
         with Interrupts() as self._interrupts:
             try:
                 self._loop(bar)
                 with self._interrupts.protected():
-                    self._commit(reopen=False)
+                    self.store.commit(self.explorer.state_dict(), self.counters, final=True)
             except (Interrupted, KeyboardInterrupt):
                 interrupted = True
             finally:
                 with self._interrupts.closing():
                     if bar is not None:
                         bar.close()
-                    # Whatever happened, close the dataset so what is written loads.
-                    if self.writer is not None:
-                        self.writer.finalize()
-                    for sink in self.sinks:
-                        sink.close()
-                    for log in (self.log, self.clone_log):
-                        if log is not None:
-                            log.close()
+                    self.store.close()
                     self.evaluator.close()
-                    self.lock.release()
+        c = self.counters
         return RunSummary(
             self.out,
-            self.counters["attempts"],
-            self.counters["executed"],
-            self.counters["contacts"],
+            c["attempts"],
+            c["executed"],
+            c["contacts"],
             self.explorer.archive_size,
-            self.counters["generations"],
+            c["generations"],
             time.perf_counter() - t0,
             interrupted,
-            self.counters["clones"],
+            c["clones"],
         )
 
     def _finished(self) -> bool:
-        """The run's stopping rule: all generations told, or ``max_attempts`` movements attempted. Clones
-        (children repeating a genome already tried) are not attempts."""
+        """The stopping rule: all generations told, or ``max_attempts`` movements attempted. Clones (children
+        repeating a genome already tried) are not attempts."""
         cfg = self.config
         if self.explorer.generation >= cfg.noveb.generations:
             return True
         return cfg.max_attempts is not None and self.explorer.attempts_asked >= cfg.max_attempts
 
-    def _submit(self):
+    def _ask_and_submit(self):
         left = None if self.config.max_attempts is None else self.config.max_attempts - self.explorer.attempts_asked
-        cands = self.explorer.ask(max_new=left)
-        self.evaluator.submit([command_for(c) for c in cands], [c.index for c in cands])
-        return cands
+        candidates = self.explorer.ask(max_new=left)
+        self.evaluator.submit([command_for(c) for c in candidates], [c.index for c in candidates])
+        return candidates
 
     def _loop(self, bar) -> None:
-        """Generations, pipelined: the next generation is submitted before this one's episodes are written,
-        so workers simulate while the (single) writer writes."""
+        """ask -> rollout -> describe -> tell -> write, one generation at a time. The next generation is
+        submitted before this one is written, so workers simulate while the writer writes."""
         if self._finished() and not self.explorer.batch_open:
             return
-        cands = self._submit()
-        while True:
+        candidates = self._ask_and_submit()
+        while candidates is not None:
             t = time.perf_counter()
             rollouts = self.evaluator.collect()
-            t_wait = time.perf_counter() - t
-            codes, t_desc = [], []
-            for r in rollouts:
-                t = time.perf_counter()
-                codes.append(self.descriptor(r.after_image) if r.feasible else None)
-                t_desc.append(time.perf_counter() - t)
-            evaluations = self.explorer.tell(cands, codes)
+            waited = time.perf_counter() - t
+            codes, describe_s = self._describe(rollouts)
+            evaluations = self.explorer.tell(candidates, codes)
             clones = self.explorer.last_clones
-            next_cands = None if self._finished() else self._submit()
-            self._write_generation(cands, rollouts, codes, evaluations, t_desc, t_wait, bar)
+            following = None if self._finished() else self._ask_and_submit()
+            for record in zip(candidates, rollouts, codes, evaluations, describe_s, strict=True):
+                self._write_attempt(*record, waited, bar)
             with self._interrupts.protected():
-                for clone in clones:
-                    self.clone_log.append(clone_row(clone))
+                self.store.write_clones([clone_row(c) for c in clones])
                 self.counters["clones"] += len(clones)
-            if self.counters["generations"] % self.config.checkpoint_every == 0:
-                with self._interrupts.protected():
-                    self._commit()
-            if next_cands is None:
-                return
-            cands = next_cands
+                self.counters["generations"] += 1
+                if self.counters["generations"] % self.config.checkpoint_every == 0:
+                    self.store.commit(self.explorer.state_dict(), self.counters)
+            self._show(bar)
+            candidates = following
+
+    def _describe(self, rollouts) -> tuple[list, list[float]]:
+        codes, seconds = [], []
+        for r in rollouts:
+            t = time.perf_counter()
+            codes.append(self.descriptor(r.after_image) if r.feasible else None)
+            seconds.append(time.perf_counter() - t)
+        return codes, seconds
+
+    def _write_attempt(self, cand, rollout, code, evaluation, describe_s: float, waited: float, bar) -> None:
+        with self._interrupts.protected():
+            c = self.counters
+            failures = int(rollout.timings.pop("worker_failures", 0))
+            episode = c["executed"] if rollout.feasible else None
+            descriptor_hex = None if code is None else self.descriptor.hex(code)
+            row = attempt_row(
+                cand, rollout, descriptor_hex, evaluation, episode, self.config.explorer, self.task.object_names
+            )
+            row["timings"] = {k: round(v, 5) for k, v in rollout.timings.items()}
+            row["timings"].update(descriptor=round(describe_s, 5), write=0.0, wait_for_batch=round(waited, 5))
+            row["timings"]["written_at"] = round(time.time(), 3)
+            row["worker_failures"] = failures
+            self.store.write(AttemptRecord(row, rollout))
+            c["worker_failures"] += failures
+            c["attempts"] += 1
+            if rollout.feasible:
+                c["executed"] += 1
+                c["contacts"] += int(rollout.touched.any())
+            if bar is not None and self.config.max_attempts is not None:
+                bar.update(1)
 
     def _progress_bar(self, enabled: bool):
         """Counts attempts when ``max_attempts`` bounds the run, generations otherwise."""
@@ -460,63 +354,16 @@ class Run:
             total, initial, unit = self.config.noveb.generations, self.counters["generations"], "gen"
         return tqdm(total=total, initial=initial, unit=unit, dynamic_ncols=True, smoothing=0.05)
 
-    def _write_generation(self, cands, rollouts, codes, evaluations, t_desc, t_wait, bar) -> None:
-        for cand, r, code, ev, td in zip(cands, rollouts, codes, evaluations, t_desc, strict=True):
-            with self._interrupts.protected():
-                episode = None
-                failures = int(r.timings.pop("worker_failures", 0))
-                t = time.perf_counter()
-                if r.feasible:
-                    episode = self.writer.add_episode(r.frames, self.task_text)
-                    self.counters["executed"] += 1
-                    self.counters["contacts"] += int(r.touched.any())
-                t_write = time.perf_counter() - t
-                row = self._row(cand, r, code, ev, episode, {"descriptor": td, "write": t_write})
-                row["timings"]["wait_for_batch"] = round(t_wait, 5)
-                row["timings"]["written_at"] = round(time.time(), 3)
-                row["worker_failures"] = failures
-                self.counters["worker_failures"] += failures
-                self.log.append(row)
-                for sink in self.sinks:
-                    sink.log(row, r)
-                self.counters["attempts"] += 1
-                if bar is not None and self.config.max_attempts is not None:
-                    bar.update(1)
-        self.counters["generations"] += 1
-        if bar is not None:
-            if self.config.max_attempts is None:
-                bar.update(1)
-            bar.set_postfix(
-                attempts=self.counters["attempts"],
-                episodes=self.counters["executed"],
-                contact=self.counters["contacts"],
-                archive=self.explorer.archive_size,
-                refresh=False,
-            )
-
-
-def clone_row(clone) -> dict[str, Any]:
-    """A sidecar row for a child that reused an earlier attempt's outcome (``DIR/babblegen/clones.jsonl``)."""
-    return {
-        "generation": clone.generation,
-        "kind": clone.kind,
-        "genome": np.asarray(clone.genome).tolist(),
-        "parent": clone.parent,
-        "source": clone.source,
-        "novelty": clone.novelty,
-        "survived": clone.survived,
-    }
-
-
-def _snapshot(root: Path) -> dict:
-    from babblegen.exporters.lerobot import snapshot
-
-    return snapshot(root)
-
-
-def _json_default(o):
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    if isinstance(o, (np.floating, np.integer)):
-        return o.item()
-    return str(o)
+    def _show(self, bar) -> None:
+        if bar is None:
+            return
+        if self.config.max_attempts is None:
+            bar.update(1)
+        c = self.counters
+        bar.set_postfix(
+            attempts=c["attempts"],
+            episodes=c["executed"],
+            contact=c["contacts"],
+            archive=self.explorer.archive_size,
+            refresh=False,
+        )

@@ -25,10 +25,9 @@ import numpy as np
 
 
 def run_one(explorer_name: str, seed: int, attempts: int, out: str, options: dict[str, Any]) -> dict:
+    from babblegen.assembly import build_descriptor, build_explorer
     from babblegen.config import RunConfig
-    from babblegen.descriptors import make_descriptor
-    from babblegen.evaluation import LocalEvaluator
-    from babblegen.explorers import make_explorer
+    from babblegen.evaluation import LocalEvaluator, arm_info
     from babblegen.exporters.report import diversity
     from babblegen.run import command_for
     from babblegen.tasks import get_task
@@ -38,12 +37,8 @@ def run_one(explorer_name: str, seed: int, attempts: int, out: str, options: dic
     task = get_task(cfg.task)
     world = WorldSettings(**{**cfg.world.to_dict(), **options.get("world", {})})
     ev = LocalEvaluator(task, world, seed)
-    w = ev.world
-    ecfg = {**cfg.explorer_config(), **options.get("explorer", {})}
-    if explorer_name != "noveb":
-        ecfg.pop("reuse_clones", None)
-    ex = make_explorer(explorer_name, ecfg, rng_seed=seed, joint_limits=w.kin.limits, start_norm=w.start_norm)
-    desc = make_descriptor(**{**cfg.descriptor_config(), **options.get("descriptor", {})})
+    ex = build_explorer(cfg, arm_info(task), options.get("explorer"))
+    desc = build_descriptor(cfg, options.get("descriptor"))
     names = task.object_names
     label = f"{options.get('label', explorer_name)}-{seed}"
     path = Path(out) / f"{label}.jsonl"

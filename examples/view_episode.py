@@ -2,7 +2,7 @@
 
     python examples/view_episode.py DIR [--episode N] [--save FILE.rrd] [--minimal]
 
-By default this calls babblegen's own logger (`babblegen.exporters.rerun_log.view_dataset`, the code behind
+By default this calls babblegen's own logger (`babblegen.exporters.rerun.view_dataset`, the code behind
 `babblegen view`): the 3D scene with the arm posed per frame, objects, tool path, contacts, the head camera,
 and the overview of every attempt. `--minimal` shows how little the rerun-sdk needs instead: the head-camera
 frames as images and the objects as 3D points on a `frame_index` timeline. Without --save the viewer opens;
@@ -79,7 +79,7 @@ def main() -> None:
     if args.minimal:
         log_minimal(args.root, args.episode, save)
     else:
-        from babblegen.exporters.rerun_log import view_dataset
+        from babblegen.exporters.rerun import view_dataset
 
         view_dataset(args.root, episodes=[args.episode], save=save)
     if save is not None:

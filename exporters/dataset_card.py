@@ -7,6 +7,8 @@ import json
 from pathlib import Path
 from typing import Any
 
+from babblegen.store import Sink, atomic_write, read_run_info
+
 CARD = "README.md"
 LICENSE = "mit"  # babblegen's license; the data is simulated, nobody else's recording
 PAPER = (
@@ -68,9 +70,21 @@ Configuration:
 
 def write_card(root: Path, run_info: dict[str, Any], counters: dict[str, int]) -> Path:
     """Write (or refresh) ROOT/README.md from meta/info.json and the run's state."""
-    from babblegen.exporters.lerobot import atomic_write
-
     root = Path(root)
     info = json.loads((root / "meta" / "info.json").read_text())
     atomic_write(root / CARD, card_text(info, run_info, counters).encode())
     return root / CARD
+
+
+class DatasetCardSink(Sink):
+    """Refreshes the card at every commit point, after the dataset's metadata (so it follows the LeRobot sink).
+    It holds no state of its own: the card is rewritten from what the other sinks committed."""
+
+    name = "card"
+
+    def __init__(self, state: dict | None, root: Path):
+        self.root = Path(root)
+
+    def commit(self, counters: dict[str, int], final: bool = False) -> dict:
+        write_card(self.root, read_run_info(self.root), counters)
+        return {}

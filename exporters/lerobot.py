@@ -13,10 +13,12 @@ from __future__ import annotations
 
 import os
 import shutil
+import time
 from pathlib import Path
 
 import numpy as np
 
+from babblegen.store import AttemptRecord, Sink, atomic_write
 from babblegen.world.rollout import Frames
 
 HEAD = "observation.images.head"
@@ -128,6 +130,42 @@ class EpisodeWriter:
         return record
 
 
+class LeRobotSink(Sink):
+    """The executed movements as LeRobot episodes (episode index = the row's ``episode_index``). Its committed
+    state is the writer's commit record; building it from one rolls the dataset back to it."""
+
+    name = "lerobot"
+
+    def __init__(self, state: dict | None, root: Path, repo_id: str, task_text: str, create: dict | None = None):
+        self.root, self.task_text = Path(root), task_text
+        if state is None:
+            if self.root.exists() and not any(self.root.iterdir()):
+                self.root.rmdir()  # LeRobot refuses an existing root, even an empty one
+            self.writer = EpisodeWriter.create(self.root, repo_id, **(create or {}))
+        else:
+            rollback(self.root, state)
+            self.writer = EpisodeWriter.reopen(self.root, repo_id)
+
+    def write(self, record: AttemptRecord) -> None:
+        expected = record.row.get("episode_index")
+        if expected is None:
+            return
+        t = time.perf_counter()
+        index = self.writer.add_episode(record.rollout.frames, self.task_text)
+        record.row["timings"]["write"] = round(time.perf_counter() - t, 5)
+        if index != expected:
+            raise RuntimeError(f"the dataset holds {index} episodes where the run expected {expected}")
+
+    def commit(self, counters: dict[str, int], final: bool = False) -> dict:
+        if final:
+            self.writer.finalize()
+            return snapshot(self.root)
+        return self.writer.commit()
+
+    def close(self) -> None:
+        self.writer.finalize()
+
+
 def snapshot(root: Path) -> dict:
     """Sizes of every tracked file and the bytes of the small meta files LeRobot rewrites in place."""
     files = {}
@@ -179,15 +217,6 @@ def rollback(root: Path, record: dict) -> list[str]:
             shutil.rmtree(d)
             removed.append(f"{d.name}/")
     return removed
-
-
-def atomic_write(path: Path, data: bytes) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "wb") as f:
-        f.write(data)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
 
 
 def load_dataset(root: str | Path, repo_id: str = "local/babblegen"):

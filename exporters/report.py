@@ -212,7 +212,7 @@ def _top_view_background(ax, run: Run) -> None:
     up, the robot's left (+y) is on the left, as in the paper's views from above."""
     from matplotlib.patches import Circle, Polygon, Rectangle
 
-    from .rerun_log import Scene
+    from .geometry import box_footprint, robot_footprint
 
     t = run.task["table"]
     (cx, cy, _), (hx, hy, _) = t["center"], t["half_extents"]
@@ -220,14 +220,14 @@ def _top_view_background(ax, run: Run) -> None:
         Rectangle((cy - hy, cx - hx), 2 * hy, 2 * hx, facecolor=TABLE_BROWN, alpha=0.35, edgecolor=TABLE_BROWN)
     )
     try:
-        foot = Scene(run.task).robot_footprint()
+        foot = robot_footprint(run.task)
     except (OSError, ValueError):  # the robot's URDF is not installed: draw PR2's base
         foot = np.array([[-0.53, -0.33], [0.13, -0.33], [0.13, 0.33], [-0.53, 0.33]])
     (x0, y0), (x1, y1) = foot.min(axis=0), foot.max(axis=0)
     ax.add_patch(Rectangle((y0, x0), y1 - y0, x1 - x0, facecolor="white", edgecolor="black", lw=1.2, zorder=2))
     ax.text((y0 + y1) / 2, (x0 + x1) / 2, "robot", ha="center", va="center", fontsize=8, zorder=3)
     for box in run.task.get("extra_obstacles") or []:
-        foot = Scene.footprint(box)
+        foot = box_footprint(box)
         ax.add_patch(Polygon(foot[:, ::-1], closed=True, facecolor="0.85", edgecolor="0.4", lw=1.0, zorder=1.5))
     for o in run.task["objects"]:
         (ox, oy), s, color = o["xy"], o["size"], o["color"][:3]

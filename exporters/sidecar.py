@@ -12,16 +12,21 @@ import os
 from pathlib import Path
 from typing import Any
 
-SIDECAR_DIR = "babblegen"
+import numpy as np
+
+from babblegen.store import (  # noqa: F401  (the sidecar's file names, re-exported for readers)
+    CHECKPOINT,
+    PREVIOUS_CHECKPOINT,
+    RUN_INFO,
+    SIDECAR_DIR,
+    AttemptRecord,
+    Sink,
+    read_run_info,
+    sidecar_dir,
+)
+
 ATTEMPTS = "attempts.jsonl"
 CLONES = "clones.jsonl"  # children that repeated a genome already tried and reused its outcome
-RUN_INFO = "run.json"
-CHECKPOINT = "checkpoint.json"  # the last commit point (exporters.state_file format)
-PREVIOUS_CHECKPOINT = "checkpoint.prev.json"  # the one before: the fallback if the last is damaged
-
-
-def sidecar_dir(root: str | Path) -> Path:
-    return Path(root) / SIDECAR_DIR
 
 
 class AttemptLog:
@@ -66,6 +71,92 @@ def read_attempts(root: str | Path, table: str = ATTEMPTS) -> list[dict[str, Any
     return rows
 
 
-def read_run_info(root: str | Path) -> dict[str, Any]:
-    with open(sidecar_dir(root) / RUN_INFO) as f:
-        return json.load(f)
+class SidecarSink(Sink):
+    """``attempts.jsonl`` and ``clones.jsonl``; its committed state is their byte lengths, and building it
+    from that state truncates whatever a crash left after them."""
+
+    name = "sidecar"
+
+    def __init__(self, state: dict[str, int] | None, root: str | Path):
+        sdir = sidecar_dir(root)
+        if state is not None:
+            AttemptLog.truncate(sdir / ATTEMPTS, state["attempts"])
+            AttemptLog.truncate(sdir / CLONES, state.get("clones", 0))
+        self.attempts = AttemptLog(sdir / ATTEMPTS)
+        self.clones = AttemptLog(sdir / CLONES)
+
+    def write(self, record: AttemptRecord) -> None:
+        self.attempts.append(record.row)
+
+    def write_clones(self, rows: list[dict[str, Any]]) -> None:
+        for row in rows:
+            self.clones.append(row)
+
+    def commit(self, counters: dict[str, int], final: bool = False) -> dict[str, int]:
+        return {"attempts": self.attempts.offset(), "clones": self.clones.offset()}
+
+    def close(self) -> None:
+        self.attempts.close()
+        self.clones.close()
+
+
+def attempt_row(
+    cand: Any,
+    rollout: Any,
+    descriptor_hex: str | None,
+    evaluation: Any,
+    episode: int | None,
+    explorer: str,
+    object_names: list[str],
+) -> dict[str, Any]:
+    """The sidecar row of one attempted movement (fields documented in README.md, "The sidecar table")."""
+    row: dict[str, Any] = {
+        "attempt": cand.index,
+        "generation": cand.generation,
+        "explorer": explorer,
+        "kind": cand.kind,
+        "genome": np.asarray(cand.genome).tolist(),
+        "parent": cand.parent,
+        "feasible": rollout.feasible,
+        "reason": rollout.reason,
+        "episode_index": episode,
+        "descriptor": descriptor_hex,
+        "novelty": evaluation.novelty,
+        "archived": evaluation.archived,
+        "ee_targets": None if rollout.ee_targets is None else np.round(rollout.ee_targets, 5).tolist(),
+        "planner": rollout.planner,
+    }
+    if rollout.feasible:
+        names = object_names
+        contact_frames = rollout.frames.contacts.sum(axis=0)
+        row.update(
+            n_frames=len(rollout.frames),
+            touched={n: bool(t) for n, t in zip(names, rollout.touched, strict=True)},
+            contact_frames={n: int(c) for n, c in zip(names, contact_frames, strict=True)},
+            displacement={n: round(float(d), 6) for n, d in zip(names, rollout.displacement, strict=True)},
+            final_poses={n: np.round(p, 6).tolist() for n, p in zip(names, rollout.final_poses, strict=True)},
+            final_ee_pos=_final_tool_point(rollout),
+        )
+    return row
+
+
+def _final_tool_point(rollout: Any) -> list[float]:
+    """The tool position at the trajectory's final waypoint (the paper's Fig. 2 point)."""
+    if rollout.ee_targets is not None:
+        return np.round(rollout.ee_targets[-1], 5).tolist()
+    ee = rollout.frames.ee_pos
+    far = int(np.argmax(np.linalg.norm(ee - ee[0], axis=1)))
+    return np.round(ee[far], 5).tolist()
+
+
+def clone_row(clone: Any) -> dict[str, Any]:
+    """The row of a child that reused an earlier attempt's outcome (``DIR/babblegen/clones.jsonl``)."""
+    return {
+        "generation": clone.generation,
+        "kind": clone.kind,
+        "genome": np.asarray(clone.genome).tolist(),
+        "parent": clone.parent,
+        "source": clone.source,
+        "novelty": clone.novelty,
+        "survived": clone.survived,
+    }

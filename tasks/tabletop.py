@@ -17,23 +17,22 @@ from mani_skill.utils.structs.types import SimConfig
 from babblegen.scene import ObjectSpec, TaskSpec
 from babblegen.world.collision import Box
 
-from . import pr2_arm  # noqa: F401  (registers the agent)
-
 # A URDF/SAPIEN cylinder's axis is x; this turns it upright.
 _UPRIGHT = [np.sqrt(0.5), 0.0, -np.sqrt(0.5), 0.0]
 OBSTACLE_COLOR = [0.55, 0.6, 0.72, 1.0]  # static obstacles (TaskSpec.extra_obstacles): slate blue
 
 
 class TabletopEnv(BaseEnv):
-    """Table, objects and a fixed head camera around the PR2-like arm; every reset restores start poses."""
+    """Table, objects and a fixed head camera around the task's arm (``task_spec.robot_uid``, whose agent
+    `tasks.envs` registers); every reset restores start poses."""
 
-    SUPPORTED_ROBOTS = ["pr2_like_arm"]
+    SUPPORTED_ROBOTS: list[str]
     task_spec: TaskSpec
 
     def __init__(
         self,
         *args,
-        robot_uids: str = "pr2_like_arm",
+        robot_uids: str | None = None,
         camera_width: int = 128,
         camera_height: int = 128,
         sim_freq: int = 100,
@@ -43,7 +42,7 @@ class TabletopEnv(BaseEnv):
         self.camera_width, self.camera_height = camera_width, camera_height
         self._sim_freq, self._control_freq = sim_freq, control_freq
         self.objects: dict[str, object] = {}
-        super().__init__(*args, robot_uids=robot_uids, **kwargs)
+        super().__init__(*args, robot_uids=robot_uids or self.task_spec.robot_uid, **kwargs)
 
     @property
     def _default_sim_config(self):

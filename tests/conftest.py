@@ -1,7 +1,10 @@
-"""Shared fixtures: small real datasets made once per test session with the real CLI.
+"""Shared fixtures: small real datasets made once per test session with the real CLI; the test tiers.
 
 `small_noveb_dataset` (NovEB, with Rerun recordings) and `small_random_dataset` (random babbling) each hold 24
 attempts at 64x64 pixels, committed after every generation. Treat them as read-only: copy what a test changes.
+
+Two tiers: tests that run the simulator are marked `sim` (here for those that use a simulated fixture,
+explicitly for the others); `pytest -m "not sim"` is the fast tier, `pytest` runs both.
 """
 
 from __future__ import annotations
@@ -9,6 +12,9 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
+
+# fixtures that build a World or make a dataset with the simulator
+SIM_FIXTURES = {"small_noveb_dataset", "small_random_dataset", "small_run", "world", "push", "one_worker"}
 
 SMALL_RUN = ["--max-attempts", "24", "--checkpoint-every", "1", "--width", "64", "--height", "64", "--no-progress"]
 
@@ -28,3 +34,19 @@ def small_noveb_dataset(tmp_path_factory) -> Path:
 @pytest.fixture(scope="session")
 def small_random_dataset(tmp_path_factory) -> Path:
     return _generate(tmp_path_factory.mktemp("random") / "ds", "--explorer", "random")
+
+
+# modules whose every test runs the simulator: the fast tier does not even import them (SAPIEN, OMPL)
+SIM_MODULES = {"test_kinematics.py", "test_parallel.py", "test_scenes.py", "test_world.py"}
+
+
+def pytest_ignore_collect(collection_path: Path, config) -> bool | None:
+    if collection_path.name in SIM_MODULES and config.getoption("markexpr", "").replace(" ", "") == "notsim":
+        return True
+    return None
+
+
+def pytest_collection_modifyitems(config, items) -> None:
+    for item in items:
+        if item.path.name in SIM_MODULES or SIM_FIXTURES & set(getattr(item, "fixturenames", ())):
+            item.add_marker(pytest.mark.sim)

@@ -221,6 +221,7 @@ def test_sigkill_then_resume_matches_an_uninterrupted_run(small_run, tmp_path):
     assert leftovers == [], "what the killed writer had in flight is gone"
 
 
+@pytest.mark.sim
 def test_sigterm_leaves_a_dataset_that_loads(tmp_path):
     out = tmp_path / "term"
     proc = _spawn(out, "--seed", "2", "--checkpoint-every", "100")
@@ -234,6 +235,7 @@ def test_sigterm_leaves_a_dataset_that_loads(tmp_path):
     assert len(ds) == sum(r["n_frames"] for r in executed)
 
 
+@pytest.mark.sim
 def test_a_second_run_on_a_dataset_in_use_is_refused(tmp_path, capsys):
     out = tmp_path / "busy"
     proc = _spawn(out, "--seed", "3", "--max-attempts", "400")
@@ -299,6 +301,7 @@ def test_resume_extends_a_run(small_run, tmp_path):
     assert {r["generation"] for r in read_attempts(gens)} == {0, 1, 2}
 
 
+@pytest.mark.sim
 def test_a_full_disk_stops_with_one_clear_line_and_resume_completes(tmp_path):
     disk = tmp_path / "disk"
     disk.mkdir()
@@ -340,3 +343,22 @@ def test_help_and_config_do_not_load_the_simulator():
     )
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stderr
+
+
+@pytest.mark.parametrize(
+    ("toml", "message"),
+    [
+        ('seed = "3"\n', "seed must be int, got '3'"),
+        ("[world]\nfps = 2.5\n", "[world] fps must be int, got 2.5"),
+        ("noveb = 3\n", "[noveb] must be a table"),
+        ("[noveb]\nnot_an_option = 1\n", "unknown keys in [noveb]: not_an_option"),
+        ("seed = \n", "is not valid TOML"),
+    ],
+)
+def test_a_bad_config_file_is_refused_with_one_line(tmp_path, capsys, toml, message):
+    config = tmp_path / "run.toml"
+    config.write_text(toml)
+    assert main(["generate", "--out", str(tmp_path / "ds"), "--config", str(config)]) == 2
+    err = capsys.readouterr().err
+    assert message in err and "Traceback" not in err, err
+    assert not (tmp_path / "ds").exists()

@@ -1,6 +1,7 @@
 import numpy as np
 import pytest
 
+from babblegen import state_file
 from babblegen.explorers import (
     EXPLORERS,
     NovEB,

@@ -3,6 +3,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from babblegen import state_file
 from babblegen.descriptors import (
     PHash,
     from_hex,
@@ -11,7 +12,6 @@ from babblegen.descriptors import (
     to_hex,
     unpack_bits,
 )
-from babblegen.exporters import state_file
 from babblegen.novelty import Archive, MostNovel, hamming, k_smallest_distances, novelty
 
 

@@ -64,6 +64,27 @@ def test_ray_auto_starts_a_local_cluster_and_writes_the_same_dataset(one_worker,
     assert_same_dataset(one_worker, out)
 
 
+def test_two_ray_nodes_write_the_same_dataset_as_one_worker(one_worker, tmp_path):
+    """A real multi-node cluster on this machine: two Ray nodes with one CPU each, so the two rollout actors
+    (one CPU each) must run on different nodes."""
+    ray = pytest.importorskip("ray")
+    from ray.cluster_utils import Cluster
+
+    cluster = Cluster(initialize_head=True, head_node_args={"num_cpus": 1, "include_dashboard": False})
+    try:
+        cluster.add_node(num_cpus=1)
+        cluster.wait_for_nodes()
+        address = cluster.address
+        out = tmp_path / "two-nodes"
+        argv = ["generate", "--out", str(out), "--seed", "2", "--ray", address, "--workers", "2", *ARGS]
+        assert main(argv) == 0
+    finally:
+        ray.shutdown()
+        cluster.shutdown()
+    assert_same_dataset(one_worker, out)
+    assert read_run_info(out)["config"]["ray"] == address
+
+
 def _commands(n: int) -> list[Command]:
     rng = np.random.default_rng(7)
     return [Command("ee_waypoints", rng.uniform(0, 1, (1, 3))) for _ in range(n)]
@@ -107,6 +128,32 @@ def test_ray_actor_killed_mid_batch_is_replaced():
         ray.kill(ev.actors[0])
         got = ev.collect()
         assert len(got) == 4 and ev.failures >= 1
+        ev.close()
+    finally:
+        ray.shutdown()
+
+
+def test_an_error_in_a_worker_process_is_retried_on_fresh_workers_then_reported():
+    ev = ProcessEvaluator(get_task("noveb_tabletop"), SETTINGS, run_seed=9, n=2, retries=1)
+    try:
+        good = _commands(2)
+        with pytest.raises(RuntimeError, match=r"(?s)attempt 7 failed on 2 worker process.*unknown command kind"):
+            ev.evaluate([good[0], Command("no_such_kind", np.zeros((1, 3))), good[1]], [6, 7, 8])
+        assert ev.failures == 2, "one failure, then one retry on a fresh worker"
+        assert all(w.process.is_alive() for w in ev.workers)
+        assert len(ev.evaluate(good, [10, 11])) == 2, "the pool still works"
+    finally:
+        ev.close()
+
+
+def test_an_error_in_a_ray_actor_follows_the_same_policy():
+    ray = pytest.importorskip("ray")
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+    try:
+        ev = RayEvaluator(get_task("noveb_tabletop"), SETTINGS, run_seed=9, address="auto", n=1, retries=1)
+        with pytest.raises(RuntimeError, match=r"(?s)attempt 3 failed on 2 Ray actors.*unknown command kind"):
+            ev.evaluate([Command("no_such_kind", np.zeros((1, 3)))], [3])
+        assert ev.failures == 2
         ev.close()
     finally:
         ray.shutdown()

@@ -17,7 +17,7 @@ from rerun.chunk import RrdReader
 
 from babblegen.cli import main
 from babblegen.exporters.lerobot import load_dataset
-from babblegen.exporters.rerun_log import INDEX, RerunSink, recording_files
+from babblegen.exporters.rerun import INDEX, RerunSink, recording_files
 from babblegen.exporters.sidecar import read_attempts, read_run_info
 from babblegen.tasks.pr2_arm import ARM_JOINTS
 from babblegen.world.rollout import Command, Frames, Rollout
@@ -298,13 +298,13 @@ def test_sink_failure_warns_once_and_disables_it(sink_dir):
 
 
 def test_sink_lets_an_interruption_through(sink_dir, monkeypatch):
-    import babblegen.exporters.rerun_log as rerun_log
+    from babblegen.exporters.rerun import columns
     from babblegen.interrupts import Interrupted
 
     def interrupted(*_args, **_kwargs):
         raise Interrupted("SIGTERM")
 
-    monkeypatch.setattr(rerun_log.EpisodeColumns, "add", interrupted)
+    monkeypatch.setattr(columns.EpisodeColumns, "add", interrupted)
     sink = new_sink(sink_dir)
     with pytest.raises(Interrupted):
         sink.log(*fake_attempt(0, 0, np.random.default_rng(2)))

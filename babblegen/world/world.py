@@ -27,9 +27,10 @@ class World:
     """Executes commands in a task's scene. Not thread-safe: one World per process."""
 
     def __init__(self, task: TaskSpec, settings: WorldSettings | None = None, seed: int = 0):
-        from babblegen.tasks import envs, pr2_arm
+        from babblegen.tasks import envs, get_robot
 
-        envs.register_envs()  # the agent, and an env for every registered scene
+        envs.register_envs()  # the agents, and an env for every registered scene
+        self.robot = robot = get_robot(task.robot_uid)
 
         self.task = task
         self.settings = s = settings or WorldSettings()
@@ -50,8 +51,8 @@ class World:
         self.agent = self.sim.agent
         self.home = np.asarray(self.agent.keyframes["home"].qpos, dtype=np.float64)
 
-        urdf = UrdfModel.load(pr2_arm.URDF_PATH)
-        self.kin = ArmKinematics(urdf, pr2_arm.BASE_LINK, pr2_arm.TOOL_LINK)
+        urdf = UrdfModel.load(robot.urdf)
+        self.kin = ArmKinematics(urdf, robot.base_link, robot.tool_link)
         body = [
             Box(
                 f"robot_body_{i}",
@@ -59,14 +60,14 @@ class World:
                 tuple(sh.size / 2),
                 tuple(map(tuple, sh.origin[:3, :3])),
             )
-            for i, sh in enumerate(urdf.links[pr2_arm.BASE_LINK])
+            for i, sh in enumerate(urdf.links[robot.base_link])
         ]
         self.collision = SphereCollisionModel(
             self.kin,
             task.planning_obstacles() + body,
             margin=s.collision_margin,
-            body_exempt_links=("r_shoulder_pan_link", "r_shoulder_lift_link"),
-            self_exempt_pairs=(("r_shoulder_pan_link", "r_upper_arm_roll_link"),),
+            body_exempt_links=robot.body_exempt_links,
+            self_exempt_pairs=robot.self_exempt_pairs,
         )
         self.planner = JointPlanner(self.collision, max_iterations=s.plan_iterations, time_limit=s.plan_time_limit)
         self.reach = self._max_reach()
@@ -81,16 +82,14 @@ class World:
 
     def _bind_scene(self) -> None:
         """Handles on the simulated scene's objects, arm and camera (again after the scene is rebuilt)."""
-        from babblegen.tasks import pr2_arm
-
         self.agent = self.sim.agent
         self._object_entities = [self.sim.objects[n]._objs[0] for n in self.object_names]
         self._object_bodies = [
             e.find_component_by_type(sapien.physx.PhysxRigidDynamicComponent) for e in self._object_entities
         ]
         self._arm = self.agent.robot._objs[0]
-        self._tool = next(link for link in self._arm.links if link.entity.name == pr2_arm.TOOL_LINK)
-        self._arm_entity_names = {link.entity.name for link in self._arm.links} - {pr2_arm.BASE_LINK}
+        self._tool = next(link for link in self._arm.links if link.entity.name == self.robot.tool_link)
+        self._arm_entity_names = {link.entity.name for link in self._arm.links} - {self.robot.base_link}
         self._object_index = {e.name: i for i, e in enumerate(self._object_entities)}
         self._camera = self.sim.scene.sensors["head"]
 

@@ -1,0 +1,46 @@
+"""Building a run's parts from its configuration: the task, the evaluator, the descriptor and the explorer.
+
+One place, so that ``babblegen generate`` and the benchmarks build exactly the same search.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from babblegen.config import RunConfig
+
+
+def build_explorer(config: RunConfig, arm: dict[str, Any], overrides: dict[str, Any] | None = None):
+    """The configured explorer, seeded with the run seed; ``arm`` is :func:`babblegen.evaluation.arm_info`'s
+    answer and ``overrides`` changes explorer options (benchmarks only)."""
+    from babblegen.explorers import make_explorer
+
+    options = {**config.explorer_config(), **(overrides or {})}
+    if config.explorer != "noveb":
+        options.pop("reuse_clones", None)
+    return make_explorer(
+        config.explorer,
+        options,
+        rng_seed=config.seed,
+        joint_limits=np.asarray(arm["limits"]),
+        start_norm=np.asarray(arm["start_norm"]),
+    )
+
+
+def build_evaluator(task: Any, config: RunConfig):
+    """One world in this process, or a pool of worker processes or Ray actors (``workers``, ``ray``)."""
+    if config.workers > 1 or config.ray:
+        from babblegen.parallel import make_parallel_evaluator
+
+        return make_parallel_evaluator(task, config)
+    from babblegen.evaluation import LocalEvaluator
+
+    return LocalEvaluator(task, config.world, config.seed)
+
+
+def build_descriptor(config: RunConfig, overrides: dict[str, Any] | None = None):
+    from babblegen.descriptors import make_descriptor
+
+    return make_descriptor(**{**config.descriptor_config(), **(overrides or {})})

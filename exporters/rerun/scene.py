@@ -1,0 +1,230 @@
+"""The static scene from the task description: table, obstacles, objects at rest, head camera and the arm's
+URDF primitives, with the calls that log them (and the overview's background) to a Rerun recording."""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from babblegen.world.kinematics import ArmKinematics, Shape, UrdfModel
+
+from ..geometry import box_footprint, robot_footprint
+
+if TYPE_CHECKING:
+    import rerun as rr
+
+ROBOT_COLOR = (215, 215, 215, 255)
+TABLE_COLOR = (140, 102, 71, 255)
+TOOL_COLOR = (40, 180, 60, 255)
+CONTACT_COLOR = (230, 30, 30, 255)
+WAYPOINT_COLOR = (255, 140, 0, 255)
+OBSTACLE_COLOR = (235, 230, 217, 255)
+
+
+# The frames are logged outside the pinhole's subtree: under a Pinhole, the viewer (0.41, software rendering)
+# draws an image black, in the 2D view and as a black quad that hides the table in the 3D view (checked with
+# scripts/viewer_screenshot.sh). The frustum stays in the 3D scene.
+HEAD_IMAGE = "head_camera/image"
+
+
+def robot_of(task: dict[str, Any]):
+    """The registered robot a task description names (the PR2-like arm for datasets that name none)."""
+    from babblegen.tasks import get_robot
+
+    return get_robot(task.get("robot_uid", "pr2_like_arm"))
+
+
+def rgba8(color: Iterable[float]) -> tuple[int, int, int, int]:
+    """A colour in [0, 1] (RGB or RGBA) as 8-bit RGBA."""
+    c = [float(v) for v in color]
+    c = (c + [1.0])[:4] if len(c) == 3 else c[:4]
+    return tuple(int(round(255 * min(max(v, 0.0), 1.0))) for v in c)  # type: ignore[return-value]
+
+
+def quat_xyzw(rot: np.ndarray) -> np.ndarray:
+    """Rotation matrices (..., 3, 3) to unit quaternions (..., 4) in x, y, z, w order (Rerun's)."""
+    from scipy.spatial.transform import Rotation
+
+    r = np.asarray(rot, dtype=np.float64)
+    return Rotation.from_matrix(r.reshape(-1, 3, 3)).as_quat().reshape(*r.shape[:-2], 4)
+
+
+class Scene:
+    """What the recordings draw: table, objects, head camera (from the task as a dict) and the arm's links."""
+
+    def __init__(self, task: dict[str, Any], joint_names: list[str] | None = None) -> None:
+        self.task = task
+        self.objects: list[dict[str, Any]] = list(task["objects"])
+        self.object_names = [o["name"] for o in self.objects]
+        self.colors = {o["name"]: rgba8(o["color"]) for o in self.objects}
+        self.robot = robot_of(task)
+        self.urdf = UrdfModel.load(self.robot.urdf)
+        self.kin = ArmKinematics(self.urdf, self.robot.base_link, self.robot.tool_link)
+        names = list(joint_names or self.kin.joint_names)
+        self.joint_names = names
+        self._order = [names.index(n) for n in self.kin.joint_names]
+        # the moving links' primitives by kind: link index on the chain, pose in the link, size
+        self.arm_shapes: dict[str, tuple[np.ndarray, np.ndarray, list[np.ndarray]]] = {}
+        for kind in ("box", "sphere", "cylinder"):
+            found = [
+                (li, s)
+                for li, link in enumerate(self.kin.link_names[1:], start=1)
+                for s in self.urdf.links.get(link, [])
+                if s.kind == kind
+            ]
+            if found:
+                self.arm_shapes[kind] = (
+                    np.array([li for li, _ in found]),
+                    np.stack([s.origin for _, s in found]),
+                    [s.size for _, s in found],
+                )
+
+    @property
+    def table_top(self) -> float:
+        t = self.task["table"]
+        return float(t["center"][2] + t["half_extents"][2])
+
+    def table_outline(self) -> np.ndarray:
+        """Corners of the table top (closed loop), world frame."""
+        (cx, cy, _), (hx, hy, _) = self.task["table"]["center"], self.task["table"]["half_extents"]
+        z = self.table_top
+        return np.array([[cx - hx, cy - hy, z], [cx + hx, cy - hy, z], [cx + hx, cy + hy, z], [cx - hx, cy + hy, z]])
+
+    def robot_footprint(self) -> np.ndarray:
+        """Corners of the robot base's largest box seen from above (x, y)."""
+        return robot_footprint(self.task)
+
+    @property
+    def obstacles(self) -> list[dict[str, Any]]:
+        """Static boxes besides the table (walls, shelves): name, center, half_extents, rotation."""
+        return list(self.task.get("extra_obstacles") or [])
+
+    footprint = staticmethod(box_footprint)
+
+    def rest_position(self, obj: dict[str, Any]) -> np.ndarray:
+        half = {"box": lambda s: s[2], "cylinder": lambda s: s[1], "sphere": lambda s: s[0]}[obj["shape"]](obj["size"])
+        return np.array([obj["xy"][0], obj["xy"][1], self.table_top + half])
+
+    def link_transforms(self, state: np.ndarray) -> np.ndarray:
+        """World poses (T, n_links, 4, 4) of the arm's links for joint states (T, dof) in dataset order."""
+        q = np.asarray(state, dtype=np.float64)[:, self._order]
+        return self.kin.link_transforms(q)
+
+    def camera_rotation(self) -> np.ndarray:
+        """Columns: the head camera's right, down and forward axes in the world frame (Rerun's RDF)."""
+        cam = self.task["camera"]
+        fwd = np.asarray(cam["target"], float) - np.asarray(cam["eye"], float)
+        fwd /= np.linalg.norm(fwd)
+        right = np.cross(fwd, [0.0, 0.0, 1.0])
+        right /= np.linalg.norm(right)
+        return np.stack([right, np.cross(fwd, right), fwd], axis=1)
+
+
+def _shape_archetype(
+    kind: str, sizes: list[np.ndarray], color: tuple[int, ...], poses: np.ndarray | None = None
+) -> rr.Boxes3D | rr.Ellipsoids3D | rr.Cylinders3D:
+    """URDF primitives of one kind (box sizes are full extents, cylinders are (radius, length) along z) as a
+    Rerun archetype; without `poses` only sizes and colour are set, for shapes posed per frame."""
+    import rerun as rr
+
+    pose = {} if poses is None else {"centers": poses[:, :3, 3], "quaternions": quat_xyzw(poses[:, :3, :3])}
+    if kind == "box":
+        return rr.Boxes3D.from_fields(
+            half_sizes=[np.asarray(s) / 2 for s in sizes], colors=color, fill_mode="solid", **pose
+        )
+    if kind == "sphere":
+        return rr.Ellipsoids3D.from_fields(
+            half_sizes=[[s[0]] * 3 for s in sizes], colors=color, fill_mode="solid", **pose
+        )
+    return rr.Cylinders3D.from_fields(
+        lengths=[s[1] for s in sizes], radii=[s[0] for s in sizes], colors=color, fill_mode="solid", **pose
+    )
+
+
+def log_scene(rec: rr.RecordingStream, scene: Scene, image_size: tuple[int, int] | None = None) -> None:
+    """Static parts: world axes, table, robot link shapes, object shapes, head camera, overview background."""
+    import rerun as rr
+
+    rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+    t = scene.task["table"]
+    rec.log(
+        "world/table",
+        rr.Boxes3D(half_sizes=[t["half_extents"]], centers=[t["center"]], colors=TABLE_COLOR, fill_mode="solid"),
+        static=True,
+    )
+    base: dict[str, list[Shape]] = {}
+    for shape in scene.urdf.links.get(scene.robot.base_link, []):
+        base.setdefault(shape.kind, []).append(shape)
+    for kind, shapes in base.items():
+        arch = _shape_archetype(kind, [x.size for x in shapes], ROBOT_COLOR, np.stack([x.origin for x in shapes]))
+        rec.log(f"world/robot/base/{kind}", arch, static=True)
+    for kind, (_, _, sizes) in scene.arm_shapes.items():
+        rec.log(f"world/robot/arm/{kind}", _shape_archetype(kind, sizes, ROBOT_COLOR), static=True)
+    for box in scene.obstacles:
+        arch = rr.Boxes3D(
+            half_sizes=[box["half_extents"]],
+            centers=[box["center"]],
+            quaternions=[quat_xyzw(np.asarray(box.get("rotation", np.eye(3)), dtype=float))],
+            colors=OBSTACLE_COLOR,
+            fill_mode="solid",
+        )
+        rec.log(f"world/obstacles/{box['name']}", arch, static=True)
+    for obj in scene.objects:
+        name, size, color = obj["name"], obj["size"], scene.colors[obj["name"]]
+        if obj["shape"] == "box":
+            arch = rr.Boxes3D(half_sizes=[size], colors=color, fill_mode="solid")
+        elif obj["shape"] == "cylinder":
+            arch = rr.Cylinders3D(lengths=[2 * size[1]], radii=[size[0]], colors=color, fill_mode="solid")
+        else:
+            arch = rr.Ellipsoids3D(half_sizes=[[size[0]] * 3], colors=color, fill_mode="solid")
+        rec.log(f"world/objects/{name}/shape", arch, static=True)  # posed per frame, see EpisodeColumns
+    cam = scene.task["camera"]
+    rec.log("world/head_camera", rr.Transform3D(translation=cam["eye"], mat3x3=scene.camera_rotation()), static=True)
+    if image_size is not None:
+        h, w = image_size
+        rec.log(
+            "world/head_camera",
+            rr.Pinhole(fov_y=float(cam["fov"]), aspect_ratio=w / h, width=w, height=h, image_plane_distance=0.25),
+            static=True,
+        )
+    log_overview_background(rec, scene)
+    object_lines = rr.SeriesLines(colors=[scene.colors[n] for n in scene.object_names], names=scene.object_names)
+    rec.log("contacts", object_lines, static=True)
+    rec.log("attempts/contacts/per_object", object_lines, static=True)
+    rec.log("attempts/contacts/total", rr.SeriesLines(colors=(20, 20, 20), names="any object"), static=True)
+    rec.log("state", rr.SeriesLines(names=scene.joint_names), static=True)
+    rec.log("attempts/novelty", rr.SeriesPoints(colors=(120, 60, 200), names="novelty", marker_sizes=2), static=True)
+    rec.log("attempts/archived", rr.SeriesPoints(colors=(230, 120, 0), names="archived", marker_sizes=2), static=True)
+    rec.log("attempts/feasible", rr.SeriesPoints(colors=(0, 150, 90), names="feasible", marker_sizes=2), static=True)
+
+
+def log_overview_background(rec: rr.RecordingStream, scene: Scene) -> None:
+    """The table outline, the robot's footprint and the objects' rest positions, for the overview view."""
+    import rerun as rr
+
+    z = scene.table_top
+    table = scene.table_outline()
+    robot = np.column_stack([scene.robot_footprint(), np.full(4, z)])
+    strips, colors, labels = (
+        [np.vstack([table, table[:1]]), np.vstack([robot, robot[:1]])],
+        [TABLE_COLOR, (90, 90, 90, 255)],
+        ["table", "robot"],
+    )
+    for box in scene.obstacles:
+        foot = scene.footprint(box)
+        strips.append(np.column_stack([np.vstack([foot, foot[:1]]), np.full(len(foot) + 1, z)]))
+        colors.append((120, 120, 120, 255))
+        labels.append(box["name"])
+    rec.log("overview/outlines", rr.LineStrips3D(strips, colors=colors, labels=labels, radii=0.004), static=True)
+    rec.log(
+        "overview/rest_positions",
+        rr.Points3D(
+            [scene.rest_position(o) for o in scene.objects],
+            colors=[scene.colors[n] for n in scene.object_names],
+            labels=scene.object_names,
+            radii=0.02,
+        ),
+        static=True,
+    )

@@ -1,0 +1,159 @@
+"""A recording from a finished dataset (`babblegen view`): the overview of every attempt and the episodes asked
+for, read back from the LeRobot dataset and the sidecar table."""
+
+from __future__ import annotations
+
+import os
+import uuid
+from collections.abc import Callable
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from ..sidecar import read_attempts, read_run_info, sidecar_dir
+from .columns import MAX_BUFFERED_FRAMES, AttemptColumns, EpisodeColumns, EpisodeData
+from .layout import blueprint, new_recording
+from .scene import Scene, log_scene
+
+if TYPE_CHECKING:
+    import pyarrow as pa
+
+
+class ViewerError(RuntimeError):
+    """The spawned Rerun viewer went away (no display, closed window) before the data reached it."""
+
+
+def _column(table: pa.Table, name: str) -> np.ndarray:
+    import pyarrow as pa
+
+    arr = table.column(name).combine_chunks()
+    if pa.types.is_list(arr.type) or pa.types.is_fixed_size_list(arr.type) or pa.types.is_large_list(arr.type):
+        return arr.flatten().to_numpy(zero_copy_only=False).reshape(len(arr), -1)
+    return arr.to_numpy(zero_copy_only=False)
+
+
+def _decode_head(ds, episode: int, timestamps: np.ndarray) -> np.ndarray | None:
+    """An episode's head-camera frames as (T, H, W, 3) uint8, or None when they cannot be decoded."""
+    from lerobot.datasets.video_utils import decode_video_frames
+
+    from ..lerobot import HEAD
+
+    if HEAD not in ds.meta.video_keys:
+        return None
+    ep = ds.meta.episodes[episode]
+    path = Path(ds.root) / ds.meta.get_video_file_path(episode, HEAD)
+    ts = (np.asarray(timestamps, dtype=np.float64) + float(ep[f"videos/{HEAD}/from_timestamp"])).tolist()
+    frames = decode_video_frames(path, ts, ds.tolerance_s, return_uint8=True)
+    return np.asarray(frames).transpose(0, 2, 3, 1)
+
+
+def view_dataset(
+    root: str | Path,
+    episodes: list[int] | None = None,
+    save: str | Path | None = None,
+    echo: Callable[[str], Any] = print,
+) -> Path | None:
+    """Log a dataset (LeRobot episodes + sidecar table) to Rerun: the overview of every attempt plus the
+    given episodes. Writes `save` when given, else opens a viewer. Returns the file written, if any."""
+    from ..lerobot import HEAD, load_dataset
+
+    root = Path(root)
+    info = read_run_info(root)
+    rows = read_attempts(root)
+    scene = Scene(info["task"], info.get("joint_names"))
+    ds = load_dataset(root, info.get("repo_id", "local/babblegen"))
+    total = ds.meta.total_episodes
+    episodes = list(range(total)) if episodes is None else episodes
+    bad = [e for e in episodes if not 0 <= e < total]
+    if bad:
+        raise ValueError(f"episode {bad[0]} is not in {root} (it has episodes 0 to {total - 1})")
+
+    rec = new_recording(f"view-{uuid.uuid4()}")
+    bp = blueprint("frame_index" if len(episodes) == 1 else "index")
+    if save is not None:
+        save = Path(save)
+        save.parent.mkdir(parents=True, exist_ok=True)
+        rec.save(save, default_blueprint=bp)
+    else:
+        import sys
+
+        import rerun as rr
+
+        beside = Path(sys.executable).parent / "rerun"  # the viewer installed with rerun-sdk, even off PATH
+        rr.spawn(recording=rec, default_blueprint=bp, executable_path=str(beside) if beside.exists() else None)
+    image_size = None
+    head = ds.meta.features.get(HEAD)
+    if head is not None:
+        image_size = (int(head["shape"][0]), int(head["shape"][1]))
+    log_scene(rec, scene, image_size)
+    columns = AttemptColumns(scene, static_overview=True)
+    for row in rows:
+        columns.add(row)
+    columns.send(rec)
+
+    table = ds.hf_dataset.with_format("arrow")[:]
+    data = {
+        name: _column(table, name)
+        for name in (
+            "observation.state",
+            "observation.ee_pos",
+            "observation.environment_state",
+            "observation.contacts",
+            "timestamp",
+            "index",
+        )
+    }
+    by_episode = {r["episode_index"]: r for r in rows if r.get("episode_index") is not None}
+    n_obj = len(scene.object_names)
+    decode_failed = False
+    batch = EpisodeColumns(scene)
+    for e in episodes:
+        meta = ds.meta.episodes[e]
+        a, b = int(meta["dataset_from_index"]), int(meta["dataset_to_index"])
+        row = by_episode.get(e, {})
+        images = None
+        if not decode_failed:
+            try:
+                images = _decode_head(ds, e, data["timestamp"][a:b])
+            except Exception as err:  # noqa: BLE001  (the rest of the episode is still worth showing)
+                decode_failed = True
+                echo(f"babblegen: warning: cannot decode the head-camera video ({err}); logging without images")
+        targets = row.get("ee_targets")
+        batch.add(
+            EpisodeData(
+                episode_index=e,
+                state=data["observation.state"][a:b],
+                ee_pos=data["observation.ee_pos"][a:b],
+                object_poses=data["observation.environment_state"][a:b].reshape(b - a, n_obj, 7),
+                contacts=data["observation.contacts"][a:b],
+                fps=float(ds.fps),
+                images=images,
+                start_index=int(data["index"][a]),
+                timestamps=data["timestamp"][a:b],
+                attempt=row.get("attempt"),
+                ee_targets=None if targets is None else np.asarray(targets),
+            )
+        )
+        if batch.n_frames >= MAX_BUFFERED_FRAMES:
+            batch.send(rec)
+    batch.send(rec)
+    try:
+        rec.flush()
+    except RuntimeError as e:
+        if save is not None:
+            raise
+        raise ViewerError(f"the Rerun viewer could not be reached ({e}); write a file with --save FILE.rrd") from e
+    finally:
+        rec.disconnect()
+    return save
+
+
+def default_view_file(root: Path) -> Path:
+    """Where `babblegen view` writes its recording when no viewer can be opened."""
+    target = sidecar_dir(root)
+    if os.access(target, os.W_OK):
+        return target / "view.rrd"
+    import tempfile
+
+    return Path(tempfile.gettempdir()) / f"babblegen-view-{Path(root).resolve().name}.rrd"
