@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["as_genome", "crossover", "extend", "gaussian_mutation", "random_genome"]
+__all__ = ["as_genome", "crossover", "extend", "gaussian_mutation", "random_genome", "waypoint_mutation"]
 
 
 def as_genome(genome: np.ndarray) -> np.ndarray:
@@ -32,6 +32,22 @@ def gaussian_mutation(genome: np.ndarray, sigma: float, rng: np.random.Generator
     if sigma < 0:
         raise ValueError(f"sigma must be >= 0, got {sigma}")
     return g + rng.normal(0.0, sigma, size=g.shape)
+
+
+def waypoint_mutation(genome: np.ndarray, sigma: float, rng: np.random.Generator) -> np.ndarray:
+    """Add N(0, sigma^2) noise to the three coordinates of one waypoint drawn uniformly (no clipping).
+
+    On a one-waypoint genome this is :func:`gaussian_mutation` (same draws); on longer ones the change, and the chance
+    that it throws the trajectory out of reach, do not grow with the number of waypoints.
+    """
+    g = as_genome(genome)
+    if sigma < 0:
+        raise ValueError(f"sigma must be >= 0, got {sigma}")
+    if g.shape[0] == 1:
+        return gaussian_mutation(g, sigma, rng)
+    out = g.copy()
+    out[int(rng.integers(g.shape[0]))] += rng.normal(0.0, sigma, size=3)
+    return out
 
 
 def extend(genome: np.ndarray, start: np.ndarray, rng: np.random.Generator) -> np.ndarray:

@@ -10,7 +10,6 @@ from babblegen.explorers import (
     make_explorer,
 )
 from babblegen.explorers.base import Candidate
-from babblegen.exporters import state_file
 
 START = np.array([0.5, 0.0, 0.5])
 PI = np.pi
@@ -317,6 +316,20 @@ def test_ties_go_to_the_newest_by_default():
         assert [c.index for c in gen1] == [2, 3]
         ex.tell(gen1, [zero, zero])  # four individuals, all novelty 0
         assert ex.parents == survivors
+
+
+def test_shortest_tie_break_keeps_fewer_waypoints_then_the_newest():
+    ex = make_noveb(population=2, k=1, mutation_prob=0.0, extend_prob=1.0, tie_break="shortest")
+    zero = np.array([0], np.uint64)
+    ex.tell(ex.ask(), [zero, zero])  # two one-waypoint parents
+    gen1 = ex.ask()
+    assert [len(c.genome) for c in gen1] == [2, 2]  # extended children
+    ex.tell(gen1, [zero, zero])  # four individuals, all novelty 0
+    assert sorted(ex.parents) == [0, 1], "the one-waypoint parents survive"
+    newest = make_noveb(population=2, k=1, mutation_prob=0.0, extend_prob=1.0, tie_break="newest")
+    newest.tell(newest.ask(), [zero, zero])
+    newest.tell(newest.ask(), [zero, zero])
+    assert newest.parents == [3, 2], "without parsimony the longer children win the ties"
 
 
 def test_archive_takes_only_descriptors_it_does_not_hold():

@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from babblegen.genome import as_genome, crossover, extend, gaussian_mutation, random_genome
+from babblegen.genome import as_genome, crossover, extend, gaussian_mutation, random_genome, waypoint_mutation
 
 
 class FixedRng:
@@ -119,3 +119,20 @@ def test_as_genome_rejects_bad_shapes():
     for bad in (np.zeros(3), np.zeros((0, 3)), np.zeros((2, 2))):
         with pytest.raises(ValueError):
             as_genome(bad)
+
+
+def test_waypoint_mutation_moves_one_waypoint_by_the_same_noise_as_gaussian_mutation():
+    genome = np.arange(15, dtype=float).reshape(5, 3)
+    moved_rows = []
+    for seed in range(200):
+        child = waypoint_mutation(genome, 0.3, np.random.default_rng(seed))
+        changed = np.flatnonzero(np.any(child != genome, axis=1))
+        assert len(changed) == 1, "exactly one waypoint changes"
+        moved_rows.append(int(changed[0]))
+    counts = np.bincount(moved_rows, minlength=5)
+    assert counts.min() >= 20, counts  # each of the 5 waypoints is chosen (expected 40 each)
+    one = np.array([[0.2, 0.4, 0.6]])
+    a = waypoint_mutation(one, 0.3, np.random.default_rng(3))
+    b = gaussian_mutation(one, 0.3, np.random.default_rng(3))
+    np.testing.assert_array_equal(a, b)  # one waypoint: the paper's operator, draw for draw
+    assert np.array_equal(genome, np.arange(15, dtype=float).reshape(5, 3)), "the input is not modified"

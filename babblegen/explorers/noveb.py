@@ -28,7 +28,7 @@ from babblegen.explorers.base import (
     Evaluation,
     check_descriptors,
 )
-from babblegen.genome import crossover, extend, gaussian_mutation, random_genome
+from babblegen.genome import crossover, extend, gaussian_mutation, random_genome, waypoint_mutation
 from babblegen.novelty import ARCHIVE_POLICIES, novelty
 from babblegen.selection import binary_tournament, crowding_distance, non_dominated_sort, nsga2_select
 
@@ -56,6 +56,7 @@ class NovEBConfig:
     archive_per_generation: int = 1
     archive_policy: str = field(default="most_novel_unseen")
     tie_break: str = "newest"
+    mutation_scope: str = "genome"  # "genome": noise on every waypoint (the paper); "waypoint": on one
     reuse_clones: bool = True
     max_waypoints: int | None = None  # extension stops at this many waypoints (None: unbounded, the paper)
 
@@ -78,6 +79,8 @@ class NovEBConfig:
             raise ValueError(f"archive_per_generation must be an integer >= 0, got {self.archive_per_generation}")
         if self.archive_policy not in ARCHIVE_POLICIES:
             raise ValueError(f"unknown archive_policy {self.archive_policy!r}; known: {sorted(ARCHIVE_POLICIES)}")
+        if self.mutation_scope not in MUTATION_SCOPES:
+            raise ValueError(f"unknown mutation_scope {self.mutation_scope!r}; known: {list(MUTATION_SCOPES)}")
         if self.tie_break not in TIE_BREAKS:
             raise ValueError(f"unknown tie_break {self.tie_break!r}; known: {list(TIE_BREAKS)}")
         if self.n_children < 1:
@@ -89,7 +92,8 @@ class NovEBConfig:
         return int(round(self.population * (1.0 / self.keep_fraction - 1.0)))
 
 
-TIE_BREAKS = ("newest", "oldest", "random")
+TIE_BREAKS = ("newest", "oldest", "random", "shortest")
+MUTATION_SCOPES = ("genome", "waypoint")
 
 
 class NovEB(ArchiveExplorer):
@@ -149,7 +153,8 @@ class NovEB(ArchiveExplorer):
             if draws[i, 0] < cfg.crossover_prob:
                 g = crossover(g, self._parents[int(mates[i])], self.rng)
             if draws[i, 1] < cfg.mutation_prob:
-                g = gaussian_mutation(g, cfg.sigma, self.rng)
+                mutate = waypoint_mutation if cfg.mutation_scope == "waypoint" else gaussian_mutation
+                g = mutate(g, cfg.sigma, self.rng)
             if draws[i, 2] < cfg.extend_prob and (cfg.max_waypoints is None or len(g) < cfg.max_waypoints):
                 g = extend(g, self.start_norm, self.rng)
             children.append((np.array(g, dtype=np.float64), int(self._parent_index[p])))
@@ -185,7 +190,8 @@ class NovEB(ArchiveExplorer):
             pool_index = np.concatenate(
                 [self._parent_index, [pending[i].index for i in fresh], [clones[i].source for i in reused]]
             )
-            keep = nsga2_select(nov[:, None], min(self.config.population, len(pool_genomes)), self._tie_order(nov))
+            lengths = np.array([len(g) for g in pool_genomes])
+            keep = nsga2_select(nov[:, None], min(self.config.population, len(pool_genomes)), self._tie_order(lengths))
             for k in keep:
                 if k >= n_par + len(fresh):
                     clones[reused[int(k) - n_par - len(fresh)]].survived = True
@@ -196,13 +202,20 @@ class NovEB(ArchiveExplorer):
         self._close_batch()
         return evaluations
 
-    def _tie_order(self, nov: np.ndarray) -> np.ndarray:
-        """Rank among equally novel individuals of the pool (parents first, then this generation's)."""
-        n = len(nov)
+    def _tie_order(self, lengths: np.ndarray) -> np.ndarray:
+        """Rank among equally novel individuals of the pool (parents first, then this generation's), given
+        their numbers of waypoints. "shortest" is lexicographic parsimony pressure (Luke and Panait, 2002):
+        fewer waypoints first, then the newest."""
+        n = len(lengths)
         if self.config.tie_break == "oldest":
             return np.arange(n)
         if self.config.tie_break == "newest":
             return np.arange(n)[::-1].copy()
+        if self.config.tie_break == "shortest":
+            order = np.lexsort((np.arange(n)[::-1], lengths))
+            ranks = np.empty(n, dtype=np.int64)
+            ranks[order] = np.arange(n)
+            return ranks
         return self.rng.permutation(n)
 
     # ------------------------------------------------------------------ checkpointing
