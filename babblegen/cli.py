@@ -7,7 +7,7 @@ import contextlib
 import sys
 from pathlib import Path
 
-from babblegen.config import ConfigError, RunConfig, load_toml, merge
+from babblegen.config import ConfigError, RunConfig, default_workers, load_toml, merge
 from babblegen.explorers.noveb import NovEBConfig
 from babblegen.world.settings import WorldSettings
 
@@ -112,7 +112,12 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         help="generations between commit points [default: 10]",
     )
-    g.add_argument("--workers", type=_positive("--workers"), default=None, help="local rollout processes [default: 1]")
+    g.add_argument(
+        "--workers",
+        type=_positive("--workers"),
+        default=None,
+        help=f"rollout processes; 1 runs them in this process [default: one per core, {default_workers()} here]",
+    )
     g.add_argument(
         "--ray",
         default=None,

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
 import tomllib
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -26,7 +27,7 @@ class RunConfig:
     max_attempts: int | None = None  # stop after this many attempted movements (default: all generations)
     descriptor: str = "phash16"  # 256-bit pHash of the full head image (the paper: 64-bit "phash")
     checkpoint_every: int = 10  # generations between commit points (crash-safe resume granularity)
-    workers: int = 1
+    workers: int = field(default_factory=lambda: default_workers())  # rollout processes: one per core
     ray: str | None = None  # None, "auto" or a cluster address
     rerun: bool = True  # write Rerun recordings beside the dataset (DIR/babblegen/rerun/)
     noveb: NovEBConfig = field(default_factory=NovEBConfig)
@@ -114,6 +115,14 @@ def resumed_config(stored: dict[str, Any], overrides: dict[str, Any] | None = No
     config = RunConfig.from_dict(data)
     config.validate()
     return config
+
+
+def default_workers() -> int:
+    """The cores this process may run on (its CPU affinity, which containers and taskset restrict)."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # not on Linux
+        return max(1, os.cpu_count() or 1)
 
 
 def _sub(cls: type, values: dict[str, Any] | Any, section: str) -> Any:

@@ -15,12 +15,25 @@ import numpy as np
 import pytest
 
 from babblegen.cli import main
+from babblegen.config import RunConfig
 from babblegen.descriptors import from_hex, make_descriptor
 from babblegen.exporters.lerobot import load_dataset, to_uint8_image
 from babblegen.exporters.sidecar import read_attempts, read_run_info
 from babblegen.novelty import hamming
 
-SMALL = ["--max-attempts", "24", "--checkpoint-every", "1", "--width", "64", "--height", "64", "--no-progress"]
+SMALL = [
+    "--workers",
+    "1",
+    "--max-attempts",
+    "24",
+    "--checkpoint-every",
+    "1",
+    "--width",
+    "64",
+    "--height",
+    "64",
+    "--no-progress",
+]
 
 
 def generate(out: Path, *extra: str) -> int:
@@ -294,7 +307,19 @@ def test_resume_extends_a_run(small_run, tmp_path):
     assert read_run_info(out)["config"]["max_attempts"] == 36
 
     gens = tmp_path / "more-generations"
-    flags = ["--generations", "2", "--checkpoint-every", "1", "--width", "64", "--height", "64", "--no-progress"]
+    flags = [
+        "--workers",
+        "1",
+        "--generations",
+        "2",
+        "--checkpoint-every",
+        "1",
+        "--width",
+        "64",
+        "--height",
+        "64",
+        "--no-progress",
+    ]
     assert main(["generate", "--out", str(gens), *flags, "--no-rerun"]) == 0
     assert {r["generation"] for r in read_attempts(gens)} == {0, 1}
     assert main(["generate", "--out", str(gens), "--resume", "--generations", "3", "--no-progress"]) == 0
@@ -311,7 +336,7 @@ def test_a_full_disk_stops_with_one_clear_line_and_resume_completes(tmp_path):
     try:
         out = disk / "ds"
         cmd = [sys.executable, "-m", "babblegen.cli", "generate", "--out", str(out), "--max-attempts", "60"]
-        cmd += ["--checkpoint-every", "1", "--no-progress", "--no-rerun"]
+        cmd += ["--workers", "1", "--checkpoint-every", "1", "--no-progress", "--no-rerun"]
         proc = subprocess.run(cmd, capture_output=True, text=True, timeout=900)
         assert proc.returncode == 1, proc.stdout + proc.stderr
         assert "Traceback" not in proc.stderr, proc.stderr
@@ -362,3 +387,8 @@ def test_a_bad_config_file_is_refused_with_one_line(tmp_path, capsys, toml, mess
     err = capsys.readouterr().err
     assert message in err and "Traceback" not in err, err
     assert not (tmp_path / "ds").exists()
+
+
+def test_workers_default_to_one_per_core():
+    assert RunConfig().workers == len(os.sched_getaffinity(0))
+    assert RunConfig.from_dict({"workers": 1}).workers == 1

@@ -307,7 +307,7 @@ def test_identical_children_of_one_batch_are_simulated_once():
         np.testing.assert_array_equal(clone.genome, by_index[clone.source].genome)
 
 
-def test_ties_go_to_the_newest_by_default():
+def test_ties_go_to_the_newest_or_the_oldest_as_configured():
     for tie_break, survivors in (("newest", [3, 2]), ("oldest", [0, 1])):
         ex = make_noveb(population=2, k=1, mutation_prob=1.0, tie_break=tie_break)
         zero = np.array([0], np.uint64)

@@ -38,7 +38,7 @@ def assert_same_dataset(a, b) -> None:
 @pytest.fixture(scope="module")
 def one_worker(tmp_path_factory):
     out = tmp_path_factory.mktemp("par") / "one"
-    assert main(["generate", "--out", str(out), "--seed", "2", *ARGS]) == 0
+    assert main(["generate", "--out", str(out), "--seed", "2", "--workers", "1", *ARGS]) == 0
     return out
 
 

@@ -2,13 +2,15 @@
 
 Generation 0 asks ``population`` random genomes (one final point uniform in [0, 1]^3). Every later generation
 proposes children of the current parents: binary tournament on (rank, crowding), optional crossover, Gaussian
-mutation with probability ``mutation_prob`` and waypoint extension with probability ``extend_prob``. A child
+mutation with probability ``mutation_prob`` (of one waypoint, or of all with ``mutation_scope = "genome"``)
+and waypoint extension with probability ``extend_prob``. A child
 that is neither mutated nor extended is a copy of its parent. The simulation is deterministic, so such a clone
 (any genome tried before) reuses the earlier outcome instead of being simulated again (``reuse_clones``; off,
 it is evaluated again as in the paper's noisy simulator). ``tell`` recomputes the novelty of parents ∪ feasible
 children (clones included) against that union plus the archive, archives the most novel newly evaluated child
 (by default only if the archive does not already hold its descriptor), and keeps ``population`` survivors by
-NSGA-II on the single objective novelty, i.e. elitist truncation, with ties broken by ``tie_break``.
+NSGA-II on the single objective novelty, i.e. elitist truncation, with ties broken by ``tie_break`` (by
+default fewer waypoints first: parsimony pressure against genomes that grow without adding novelty).
 
 Infeasible candidates (no IK solution or no collision-free plan: descriptor ``None``) have no behaviour, so
 they get no novelty, are never archived and never survive selection; they still consume an attempt index.
@@ -37,7 +39,8 @@ __all__ = ["NovEB", "NovEBConfig"]
 
 @dataclass
 class NovEBConfig:
-    """NovEB parameters; the defaults are those of the paper's appendix.
+    """NovEB parameters; the numbers are those of the paper's appendix. Where babblegen departs from the
+    paper's procedure (README, "Where babblegen departs from the paper"), the option restoring it is named.
 
     ``keep_fraction`` is the fraction of parents ∪ children that survives, so each generation asks
     ``population * (1 / keep_fraction - 1)`` children (12 with the defaults). ``mutation_prob`` and
@@ -55,8 +58,8 @@ class NovEBConfig:
     crossover_prob: float = 0.0
     archive_per_generation: int = 1
     archive_policy: str = field(default="most_novel_unseen")
-    tie_break: str = "newest"
-    mutation_scope: str = "genome"  # "genome": noise on every waypoint (the paper); "waypoint": on one
+    tie_break: str = "shortest"  # among equal novelty: fewer waypoints, then newest ("oldest": the paper)
+    mutation_scope: str = "waypoint"  # noise on one waypoint drawn at random ("genome": on all, the paper)
     reuse_clones: bool = True
     max_waypoints: int | None = None  # extension stops at this many waypoints (None: unbounded, the paper)
 
