@@ -34,6 +34,8 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
+from timing import per_call
+
 REPO = Path(__file__).resolve().parents[1]
 BIN = Path(sys.executable).parent
 PY = sys.executable
@@ -99,20 +101,6 @@ BAD_INPUT: list[tuple[str, list[str], list[str], list[str], str | None]] = [
 
 
 # --- timing -------------------------------------------------------------------------------------------------
-def per_call(fn: Callable[[], object], budget: float = 0.3, repeats: int = 5) -> float:
-    """Seconds per call of fn: best of `repeats` runs of about budget / repeats seconds each."""
-    fn()
-    t0 = time.perf_counter()
-    fn()
-    once = max(time.perf_counter() - t0, 1e-7)
-    n = max(1, int(budget / repeats / once))
-    best = math.inf
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        for _ in range(n):
-            fn()
-        best = min(best, (time.perf_counter() - t0) / n)
-    return best
 
 
 def wall(cmd: list[str], repeats: int = 3) -> float:

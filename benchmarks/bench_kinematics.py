@@ -34,17 +34,16 @@ from __future__ import annotations
 import argparse
 import ast
 import io
-import math
 import subprocess
 import sys
 import time
 import tokenize
 from collections import Counter
-from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 from scipy.spatial.transform import Rotation
+from timing import per_call
 
 from babblegen.world.collision import Box, SphereCollisionModel
 from babblegen.world.kinematics import ArmKinematics, UrdfModel
@@ -56,22 +55,6 @@ BASE, TOOL = "base_link", "r_gripper_link"
 
 
 # --- timing -------------------------------------------------------------------------------------------------
-def per_call(fn: Callable[[], object], budget: float = 0.25, repeats: int = 5) -> float:
-    """Seconds per call of fn: best of `repeats` runs of about budget / repeats seconds each."""
-    fn()
-    t0 = time.perf_counter()
-    fn()
-    once = max(time.perf_counter() - t0, 1e-7)
-    n = max(1, int(budget / repeats / once))
-    best = math.inf
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        for _ in range(n):
-            fn()
-        best = min(best, (time.perf_counter() - t0) / n)
-    return best
-
-
 def rotation_angle(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Angle (rad) of a^T b for rotation matrices (..., 3, 3); accurate for tiny angles too."""
     m = np.swapaxes(a, -1, -2) @ b

@@ -16,19 +16,8 @@ import pytest
 # fixtures that build a World or make a dataset with the simulator
 SIM_FIXTURES = {"small_noveb_dataset", "small_random_dataset", "small_run", "world", "push", "one_worker"}
 
-SMALL_RUN = [
-    "--workers",
-    "1",
-    "--max-attempts",
-    "24",
-    "--checkpoint-every",
-    "1",
-    "--width",
-    "64",
-    "--height",
-    "64",
-    "--no-progress",
-]
+SMALL_RUN = ["--workers", "1", "--max-attempts", "24", "--checkpoint-every", "1"]
+SMALL_RUN += ["--width", "64", "--height", "64", "--no-progress"]
 
 
 def _generate(out: Path, *extra: str) -> Path:

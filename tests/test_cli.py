@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import SMALL_RUN
 
 from babblegen.cli import main
 from babblegen.config import RunConfig
@@ -21,19 +22,7 @@ from babblegen.exporters.lerobot import load_dataset, to_uint8_image
 from babblegen.exporters.sidecar import read_attempts, read_run_info
 from babblegen.novelty import hamming
 
-SMALL = [
-    "--workers",
-    "1",
-    "--max-attempts",
-    "24",
-    "--checkpoint-every",
-    "1",
-    "--width",
-    "64",
-    "--height",
-    "64",
-    "--no-progress",
-]
+SMALL = SMALL_RUN  # one worker: the datasets are compared with in-process runs
 
 
 def generate(out: Path, *extra: str) -> int:
@@ -307,19 +296,7 @@ def test_resume_extends_a_run(small_run, tmp_path):
     assert read_run_info(out)["config"]["max_attempts"] == 36
 
     gens = tmp_path / "more-generations"
-    flags = [
-        "--workers",
-        "1",
-        "--generations",
-        "2",
-        "--checkpoint-every",
-        "1",
-        "--width",
-        "64",
-        "--height",
-        "64",
-        "--no-progress",
-    ]
+    flags = ["--generations", "2", *SMALL_RUN[:2], *SMALL_RUN[4:]]  # all but --max-attempts
     assert main(["generate", "--out", str(gens), *flags, "--no-rerun"]) == 0
     assert {r["generation"] for r in read_attempts(gens)} == {0, 1}
     assert main(["generate", "--out", str(gens), "--resume", "--generations", "3", "--no-progress"]) == 0
