@@ -26,7 +26,7 @@ import numpy as np
 from babblegen.config import ConfigError, RunConfig, resumed_config
 from babblegen.exporters.sidecar import attempt_row, clone_row
 from babblegen.interrupts import Interrupted, Interrupts
-from babblegen.store import RUN_INFO, AttemptRecord, RunStore, read_run_info, sidecar_dir
+from babblegen.store import RUN_INFO, AttemptRecord, RunStore, atomic_write, read_run_info, sidecar_dir
 from babblegen.world.rollout import Command
 
 FORMAT_VERSION = 1  # of run.json
@@ -220,7 +220,8 @@ class Run:
             for p in self.out.iterdir():
                 shutil.rmtree(p) if p.is_dir() else p.unlink()
             self._open_new()
-            info.write_bytes(data)
+            atomic_write(info, data)  # the same run, started afresh
+            store.record_extension(self.config.to_dict())  # with what this resume changed
             return
         ckpt = store.read_checkpoint(lambda message: print(f"babblegen: warning: {message}", file=sys.stderr))
         store.record_extension(self.config.to_dict())

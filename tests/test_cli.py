@@ -224,6 +224,20 @@ def test_sigkill_then_resume_matches_an_uninterrupted_run(small_run, tmp_path):
 
 
 @pytest.mark.sim
+def test_killed_before_its_first_commit_point_a_run_starts_afresh_on_resume(small_run, tmp_path):
+    out = tmp_path / "early"
+    proc = _spawn(out, "--seed", "2", "--max-attempts", "200", "--checkpoint-every", "100")
+    _wait_for_rows(out, 5, proc)
+    proc.kill()
+    proc.wait(timeout=60)
+    assert not (out / "babblegen" / "checkpoint.json").exists()
+    assert generate(out, "--resume") == 0  # SMALL: --max-attempts 24, a change the resume records
+    assert comparable(read_attempts(out)) == comparable(read_attempts(small_run))
+    info = read_run_info(out)
+    assert info["config"]["max_attempts"] == 24 and len(info["resumed"]) == 1
+
+
+@pytest.mark.sim
 def test_sigterm_leaves_a_dataset_that_loads(tmp_path):
     out = tmp_path / "term"
     proc = _spawn(out, "--seed", "2", "--checkpoint-every", "100")
