@@ -29,15 +29,16 @@ def build_explorer(config: RunConfig, arm: dict[str, Any], overrides: dict[str, 
     )
 
 
-def build_evaluator(task: Any, config: RunConfig):
-    """One world in this process, or a pool of worker processes or Ray actors (``workers``, ``ray``)."""
+def build_evaluator(task: Any, config: RunConfig, prepare=None):
+    """One world in this process, or a pool of worker processes or Ray actors (``workers``, ``ray``);
+    ``prepare`` runs on each rollout where it ran (:data:`babblegen.evaluation.Prepare`)."""
     if config.workers > 1 or config.ray:
         from babblegen.parallel import make_parallel_evaluator
 
-        return make_parallel_evaluator(task, config)
+        return make_parallel_evaluator(task, config, prepare)
     from babblegen.evaluation import LocalEvaluator
 
-    return LocalEvaluator(task, config.world, config.seed)
+    return LocalEvaluator(task, config.world, config.seed, prepare=prepare)
 
 
 def build_descriptor(config: RunConfig, overrides: dict[str, Any] | None = None):

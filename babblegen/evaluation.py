@@ -6,7 +6,10 @@ depend on which worker ran what.
 
 from __future__ import annotations
 
+import time
 from abc import ABC, abstractmethod
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 
@@ -14,11 +17,49 @@ from babblegen.scene import TaskSpec
 from babblegen.world.rollout import Command, Rollout
 from babblegen.world.world import World, WorldSettings
 
+Prepare = Callable[[Rollout], None]  # work done on a rollout where it ran (see `Preparers`)
 
-def seeded_rollout(world: World, command: Command, run_seed: int, attempt: int) -> Rollout:
-    """One rollout whose randomness (IK restarts, planner) depends only on (run_seed, attempt)."""
+
+class Preparers:
+    """The sinks' per-episode work, done where the rollout ran (a worker process, a Ray node) rather than in the
+    one coordinator: ``steps`` maps a sink name to a picklable callable taking the executed rollout's frames;
+    its result lands in ``rollout.prepared[name]``. The seconds spent go to ``rollout.timings["prepare"]``."""
+
+    def __init__(self, steps: dict[str, Callable[[Any], Any]]):
+        self.steps = steps
+
+    def __call__(self, rollout: Rollout) -> None:
+        if not rollout.feasible or rollout.frames is None:
+            return
+        t = time.perf_counter()
+        for name, step in self.steps.items():
+            rollout.prepared[name] = step(rollout.frames)
+        rollout.timings["prepare"] = time.perf_counter() - t
+
+    def warm_up(self) -> None:
+        for step in self.steps.values():
+            if hasattr(step, "warm_up"):
+                step.warm_up()
+
+
+def warm_up(world: World, prepare: Prepare | None) -> None:
+    """Pay the one-time costs before the first attempt (the renderer's shaders, the preparers' imports), so
+    that attempts' timings measure attempts."""
+    world.warm_up()
+    if hasattr(prepare, "warm_up"):
+        prepare.warm_up()
+
+
+def seeded_rollout(
+    world: World, command: Command, run_seed: int, attempt: int, prepare: Prepare | None = None
+) -> Rollout:
+    """One rollout whose randomness (IK restarts, planner) depends only on (run_seed, attempt), then
+    ``prepare`` (picklable: it travels to worker processes and Ray actors)."""
     world.rng = np.random.default_rng([run_seed, attempt])
-    return world.rollout(command)
+    rollout = world.rollout(command)
+    if prepare is not None:
+        prepare(rollout)
+    return rollout
 
 
 def arm_info(task: TaskSpec) -> dict:
@@ -59,12 +100,23 @@ class Evaluator(ABC):
 class LocalEvaluator(Evaluator):
     """One World in this process (rollouts run inside `collect`)."""
 
-    def __init__(self, task: TaskSpec, settings: WorldSettings, run_seed: int, world: World | None = None):
+    def __init__(
+        self,
+        task: TaskSpec,
+        settings: WorldSettings,
+        run_seed: int,
+        world: World | None = None,
+        prepare: Prepare | None = None,
+    ):
         self.world = world or World(task, settings, seed=run_seed)
-        self.run_seed = run_seed
+        self.run_seed, self.prepare = run_seed, prepare
+        warm_up(self.world, prepare)
 
     def evaluate(self, commands: list[Command], attempts: list[int]) -> list[Rollout]:
-        return [seeded_rollout(self.world, c, self.run_seed, a) for c, a in zip(commands, attempts, strict=True)]
+        return [
+            seeded_rollout(self.world, c, self.run_seed, a, self.prepare)
+            for c, a in zip(commands, attempts, strict=True)
+        ]
 
     def close(self) -> None:
         self.world.close()

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 from multiprocessing.connection import wait
 
 from babblegen.config import ConfigError, RunConfig
-from babblegen.evaluation import Evaluator
+from babblegen.evaluation import Evaluator, Prepare
 from babblegen.scene import TaskSpec
 from babblegen.world.rollout import Command, Rollout
 from babblegen.world.settings import WorldSettings
@@ -35,18 +35,19 @@ from babblegen.world.settings import WorldSettings
 log = logging.getLogger(__name__)
 
 
-def _worker_main(conn, task_name: str, settings: WorldSettings, run_seed: int) -> None:
+def _worker_main(conn, task_name: str, settings: WorldSettings, run_seed: int, prepare: Prepare | None) -> None:
     """Worker loop: build a World once, then answer (attempt, command) requests until told to stop. A Python
     error in a rollout is sent back (the coordinator replaces this worker and retries, as for a crash)."""
     os.environ.setdefault("LP_NUM_THREADS", "1")  # one rendering thread per worker process
     import torch
 
     torch.set_num_threads(1)  # one core per worker: idle torch threads would spin against the other processes
-    from babblegen.evaluation import seeded_rollout
+    from babblegen.evaluation import seeded_rollout, warm_up
     from babblegen.tasks import get_task
     from babblegen.world.world import World
 
     world = World(get_task(task_name), settings, seed=run_seed)
+    warm_up(world, prepare)
     conn.send(("ready", None))
     while True:
         msg = conn.recv()
@@ -54,7 +55,7 @@ def _worker_main(conn, task_name: str, settings: WorldSettings, run_seed: int) -
             break
         attempt, command = msg
         try:
-            conn.send(("ok", seeded_rollout(world, command, run_seed, attempt)))
+            conn.send(("ok", seeded_rollout(world, command, run_seed, attempt, prepare)))
         except Exception:
             conn.send(("error", traceback.format_exc(limit=-3)))
     world.close()
@@ -210,10 +211,17 @@ class ProcessEvaluator(PoolEvaluator):
     kind = "worker process"
 
     def __init__(
-        self, task: TaskSpec, settings: WorldSettings, run_seed: int, n: int, timeout: float = 300.0, retries: int = 2
+        self,
+        task: TaskSpec,
+        settings: WorldSettings,
+        run_seed: int,
+        n: int,
+        timeout: float = 300.0,
+        retries: int = 2,
+        prepare: Prepare | None = None,
     ):
         super().__init__(n, timeout, retries)
-        self.task, self.settings, self.run_seed = task, settings, run_seed
+        self.task, self.settings, self.run_seed, self.prepare = task, settings, run_seed, prepare
         self.ctx = mp.get_context("spawn")
         self.workers = [self._spawn() for _ in range(n)]
         for w in self.workers:
@@ -222,7 +230,7 @@ class ProcessEvaluator(PoolEvaluator):
     def _spawn(self) -> _Worker:
         parent, child = self.ctx.Pipe()
         p = self.ctx.Process(
-            target=_worker_main, args=(child, self.task.name, self.settings, self.run_seed), daemon=True
+            target=_worker_main, args=(child, self.task.name, self.settings, self.run_seed, self.prepare), daemon=True
         )
         p.start()
         child.close()
@@ -289,6 +297,7 @@ class RayEvaluator(PoolEvaluator):
         n: int | None = None,
         timeout: float = 300.0,
         retries: int = 2,
+        prepare: Prepare | None = None,
     ):
         import ray
 
@@ -308,16 +317,18 @@ class RayEvaluator(PoolEvaluator):
 
         @ray.remote(num_cpus=1, max_restarts=0)
         class RolloutActor:
-            def __init__(self, task_name: str, settings: WorldSettings, run_seed: int):
+            def __init__(self, task_name: str, settings: WorldSettings, run_seed: int, prepare: Prepare | None):
                 os.environ.setdefault("LP_NUM_THREADS", "1")
                 import torch
 
                 torch.set_num_threads(1)
+                from babblegen.evaluation import warm_up
                 from babblegen.tasks import get_task
                 from babblegen.world.world import World
 
                 self.world = World(get_task(task_name), settings, seed=run_seed)
-                self.run_seed = run_seed
+                warm_up(self.world, prepare)
+                self.run_seed, self.prepare = run_seed, prepare
 
             def ping(self) -> bool:
                 return True
@@ -325,10 +336,10 @@ class RayEvaluator(PoolEvaluator):
             def rollout(self, attempt: int, command: Command) -> Rollout:
                 from babblegen.evaluation import seeded_rollout
 
-                return seeded_rollout(self.world, command, self.run_seed, attempt)
+                return seeded_rollout(self.world, command, self.run_seed, attempt, self.prepare)
 
         self._actor_cls = RolloutActor
-        self._args = (task.name, settings, run_seed)
+        self._args = (task.name, settings, run_seed, prepare)
         self.actors = [self._actor_cls.remote(*self._args) for _ in range(n)]
         ray.get([a.ping.remote() for a in self.actors])
         self._refs: dict[int, object] = {}
@@ -370,12 +381,11 @@ class RayEvaluator(PoolEvaluator):
             self.ray.shutdown()
 
 
-def make_parallel_evaluator(task: TaskSpec, config: RunConfig) -> Evaluator:
+def make_parallel_evaluator(task: TaskSpec, config: RunConfig, prepare: Prepare | None = None) -> Evaluator:
     if config.ray:
+        n = config.workers if config.workers > 1 else None
         try:
-            return RayEvaluator(
-                task, config.world, config.seed, config.ray, n=config.workers if config.workers > 1 else None
-            )
+            return RayEvaluator(task, config.world, config.seed, config.ray, n=n, prepare=prepare)
         except ImportError:
             raise ConfigError("--ray needs Ray: pip install 'babblegen[ray]'") from None
-    return ProcessEvaluator(task, config.world, config.seed, config.workers)
+    return ProcessEvaluator(task, config.world, config.seed, config.workers, prepare=prepare)

@@ -152,23 +152,37 @@ class Run:
         self.joint_names = list(arm["joints"])
         self.descriptor = build_descriptor(cfg)
         self.explorer = build_explorer(cfg, arm)
-        self.evaluator = build_evaluator(self.task, cfg)
+        self.evaluator = build_evaluator(self.task, cfg, prepare=self._preparers())
         self.task_text = f"{cfg.explorer} babbling in {cfg.task}"
+
+    def _features(self) -> dict:
+        from babblegen.exporters.lerobot_encoding import features
+
+        shape = (self.config.world.camera_height, self.config.world.camera_width)
+        return features(self.joint_names, self.task.object_names, *shape)
+
+    def _preparers(self):
+        """The sinks' per-episode work, done by the worker that ran the movement: the LeRobot episode's video
+        and statistics, the Rerun recording's JPEG frames."""
+        from babblegen.evaluation import Preparers
+        from babblegen.exporters.lerobot_encoding import EpisodeEncoder, with_default_features
+
+        steps = {"lerobot": EpisodeEncoder(self.config.world.fps, with_default_features(self._features()))}
+        if self.config.rerun:
+            from babblegen.exporters.rerun import JpegFrames
+
+            steps["rerun"] = JpegFrames()
+        return Preparers(steps)
 
     def _sinks(self, repo_id: str) -> list[tuple[str, Any]]:
         """The run's outputs, in the order they receive each attempt (the sidecar row records the LeRobot
         write time, so it comes after it; the card is refreshed after the dataset's metadata)."""
         from babblegen.exporters.dataset_card import DatasetCardSink
-        from babblegen.exporters.lerobot import LeRobotSink, features
+        from babblegen.exporters.lerobot import LeRobotSink
         from babblegen.exporters.sidecar import SidecarSink
 
         cfg, out = self.config, self.out
-        shape = (cfg.world.camera_height, cfg.world.camera_width)
-        create = {
-            "fps": cfg.world.fps,
-            "feats": features(self.joint_names, self.task.object_names, *shape),
-            "robot_type": self.task.robot_uid,
-        }
+        create = {"fps": cfg.world.fps, "feats": self._features(), "robot_type": self.task.robot_uid}
         makers: list[tuple[str, Any]] = [
             ("lerobot", lambda state: LeRobotSink(state, out, repo_id, self.task_text, create)),
             ("sidecar", lambda state: SidecarSink(state, out)),

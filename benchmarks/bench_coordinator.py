@@ -26,13 +26,19 @@ import numpy as np
 
 
 def record(n: int, seed: int, width: int) -> list:
-    """``n`` real rollouts of random one-waypoint genomes, in order (infeasible ones included)."""
-    from babblegen.evaluation import LocalEvaluator
+    """``n`` real rollouts of random one-waypoint genomes, in order (infeasible ones included), each executed
+    one with its episode encoded as a worker encodes it."""
+    from babblegen.evaluation import LocalEvaluator, Preparers, arm_info
+    from babblegen.exporters.lerobot_encoding import EpisodeEncoder, features, with_default_features
+    from babblegen.exporters.rerun import JpegFrames
     from babblegen.tasks import DEFAULT_TASK, get_task
     from babblegen.world.rollout import Command
     from babblegen.world.settings import WorldSettings
 
-    ev = LocalEvaluator(get_task(DEFAULT_TASK), WorldSettings(camera_width=width, camera_height=width), seed)
+    task, settings = get_task(DEFAULT_TASK), WorldSettings(camera_width=width, camera_height=width)
+    feats = with_default_features(features(arm_info(task)["joints"], task.object_names, width, width))
+    prepare = Preparers({"lerobot": EpisodeEncoder(settings.fps, feats), "rerun": JpegFrames()})
+    ev = LocalEvaluator(task, settings, seed, prepare=prepare)
     rng = np.random.default_rng(seed)
     # the first movements warm the simulator and renderer up (one took 11 s): not representative, not kept
     warm = [Command("ee_waypoints", np.array([[0.5, 0.3, 0.5]])), Command("ee_waypoints", np.array([[0.4, 0.2, 0.3]]))]
@@ -53,11 +59,11 @@ class ReplayEvaluator:
 
     def submit(self, commands: list, attempts: list[int]) -> None:
         chosen = [self.rollouts[a % len(self.rollouts)] for a in attempts]
-        costs = sorted((r.timings.get("total", 0.0) for r in chosen), reverse=True)
-        finish = [0.0] * self.workers  # longest first onto the least loaded worker
+        costs = sorted((worker_seconds(r) for r in chosen), reverse=True)
+        finish = [0.0] * max(self.workers, 1)  # longest first onto the least loaded worker (0: no wait at all)
         for c in costs:
             finish[int(np.argmin(finish))] += c
-        ready_at = time.perf_counter() + (max(finish) if finish else 0.0)
+        ready_at = time.perf_counter() + (max(finish) if finish and self.workers else 0.0)
         self._batch = ([_fresh(r, cmd) for r, cmd in zip(chosen, commands, strict=True)], ready_at)
 
     def collect(self) -> list:
@@ -76,6 +82,11 @@ class ReplayEvaluator:
         pass
 
 
+def worker_seconds(rollout) -> float:
+    """What the rollout cost its worker: planning, simulation, rendering and preparing its episode."""
+    return rollout.timings.get("total", 0.0) + rollout.timings.get("prepare", 0.0)
+
+
 def _fresh(rollout, command):
     """A copy carrying this attempt's command (the run pops per-attempt timing keys from it)."""
     import dataclasses
@@ -83,16 +94,17 @@ def _fresh(rollout, command):
     return dataclasses.replace(rollout, command=command, timings=dict(rollout.timings))
 
 
-def run(rollouts: list, workers: int, attempts: int, width: int, out: Path) -> dict:
+def run(rollouts: list, workers: int, attempts: int, width: int, population: int, out: Path) -> dict:
     import babblegen.assembly as assembly
     from babblegen.config import RunConfig
     from babblegen.exporters.sidecar import read_attempts
     from babblegen.run import Run
 
     cfg = RunConfig(seed=0, max_attempts=attempts, workers=1)
+    cfg.noveb.population = population
     cfg.world = type(cfg.world)(camera_width=width, camera_height=width)
     original = assembly.build_evaluator
-    assembly.build_evaluator = lambda task, config: ReplayEvaluator(rollouts, workers)
+    assembly.build_evaluator = lambda task, config, prepare=None: ReplayEvaluator(rollouts, workers)
     try:
         run = Run.start(out, cfg)
         t0 = time.perf_counter()
@@ -157,26 +169,31 @@ def main() -> None:
     p.add_argument("--workers", type=int, nargs="+", default=[1, 2, 4, 8, 16, 32])
     p.add_argument("--record", type=int, default=48, help="real rollouts recorded and replayed")
     p.add_argument("--width", type=int, default=128)
+    p.add_argument("--population", type=int, nargs="+", default=[12], help="NovEB populations to run")
     p.add_argument("--plot", type=Path, default=None, help="save the curve here (PNG)")
     args = p.parse_args()
 
     rollouts = record(args.record, 0, args.width)
     executed = [r for r in rollouts if r.feasible]
-    per_attempt = float(np.mean([r.timings.get("total", 0.0) for r in rollouts]))
+    per_attempt = float(np.mean([worker_seconds(r) for r in rollouts]))
     per_executed = per_attempt * len(rollouts) / max(1, len(executed))
-    print(f"recorded {len(rollouts)} rollouts ({len(executed)} executed): {per_attempt:.3f} s per attempt, ")
+    print(f"recorded {len(rollouts)} rollouts ({len(executed)} executed): {per_attempt:.3f} s per attempt,")
     print(f"{per_executed:.3f} s of worker time per executed episode")
     results = []
     with tempfile.TemporaryDirectory() as tmp:
-        for w in args.workers:
-            results.append(run(rollouts, w, args.attempts, args.width, Path(tmp) / f"w{w}"))
-    print(f"{'workers':>8} {'eps/s':>7} {'ideal':>7} {'kept':>6} {'busy':>6}  coordinator s per episode by sink")
+        for pop in args.population:
+            for w in args.workers:
+                results.append(run(rollouts, w, args.attempts, args.width, pop, Path(tmp) / f"p{pop}w{w}"))
+                results[-1]["population"] = pop
+    print("workers 0: every batch back at once (the coordinator alone)")
+    print(f"{'pop':>4} {'workers':>8} {'eps/s':>7} {'ideal':>7} {'kept':>6} {'busy':>6}  coordinator s per episode")
     for r in results:
-        ideal = r["workers"] / per_executed
+        ideal = r["workers"] / per_executed if r["workers"] else math.inf
         sinks = " ".join(f"{k} {v:.3f}" for k, v in r["sinks"].items())
         print(
-            f"{r['workers']:>8} {r['episodes_per_s']:7.2f} {ideal:7.2f} {min(1.0, r['episodes_per_s'] / ideal):6.0%} "
-            f"{r['coordinator_busy']:6.0%}  descriptor {r['descriptor']:.3f} {sinks}"
+            f"{r['population']:>4} {r['workers']:>8} {r['episodes_per_s']:7.2f} {ideal:7.2f} "
+            f"{min(1.0, r['episodes_per_s'] / ideal):6.0%} {r['coordinator_busy']:6.0%}  "
+            f"descriptor {r['descriptor']:.3f} {sinks}"
         )
     if args.plot:
         plot(results, per_executed, args.width, args.plot)

@@ -1,63 +1,46 @@
-"""Executed trajectories as LeRobot v3.0 episodes, written with lerobot's own writer, crash-safe.
+"""Executed trajectories as LeRobot v3.0 episodes, appended in attempt order, crash-safe, at the speed of many
+workers.
 
-LeRobot keeps parquet footers open until `finalize()`, rewrites meta/info.json and meta/stats.json after every
-episode, and grows one video file per chunk by concatenation. A process killed between two finalizes leaves
-files no reader can open. So the writer works in *segments*: at each commit point it finalizes, records the
-exact set of data/video/episode-meta files with their sizes plus a copy of the small meta files, and reopens
-the dataset with `LeRobotDataset.resume`, which always starts new files. Committed files are never written
-again; `rollback()` removes whatever came after the last commit, however the process ended. Per-episode save
-cost stays flat because no file grows past one segment.
+Each episode arrives encoded (``exporters/lerobot_encoding.py``: video, per-frame columns and statistics made
+with LeRobot's own code, in the worker that simulated it). The writer keeps the episodes of a *segment* in
+memory and writes the segment at a commit point as new files, in LeRobot's layout: one data parquet, one video
+made by concatenating the episodes' mp4s (LeRobot's ``concatenate_video_files``, no re-encoding), one
+episode-metadata parquet, then ``info.json``, ``stats.json`` (LeRobot's ``aggregate_stats``) and
+``tasks.parquet``. Per episode the coordinator does almost nothing; per segment it writes a few files.
+
+Crash safety: committed files are never written again. A commit records the exact set of data/video/episode
+files with their sizes plus the bytes of the small meta files; ``rollback()`` removes whatever came after the
+last commit and restores those bytes, however the process ended. ``LeRobotDataset`` reads the result
+(tested against datasets written by LeRobot's own ``save_episode``, ``exporters/lerobot_reference.py``).
 """
 
 from __future__ import annotations
 
 import os
 import shutil
+import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
+from babblegen.exporters.lerobot_encoding import (
+    HEAD,
+    EncodedEpisode,
+    encode_episode,
+    features,
+)
 from babblegen.store import AttemptRecord, Sink, atomic_write
-from babblegen.world.rollout import Frames
 
-HEAD = "observation.images.head"
+__all__ = ["HEAD", "features"]  # the schema, re-exported for the sinks' users
+
 ROLLED_META = ("meta/info.json", "meta/stats.json", "meta/tasks.parquet")
 TRACKED_DIRS = ("data", "videos", "meta/episodes")
-# Frames go straight to an encoder thread (no PNG round trip, image stats computed while encoding): measured
-# 290 -> 238 ms per 24-frame 128x128 episode. LeRobot drops frames when this queue is full, and an episode's
-# frames arrive at once, so it holds any episode.
-STREAMING = {"streaming_encoding": True, "encoder_queue_maxsize": 100_000}
+MAX_SEGMENT_EPISODES = 2_000  # written early past this, so memory stays bounded whatever the commit interval
 
 
-def features(joint_names: list[str], object_names: list[str], height: int, width: int) -> dict:
-    """The dataset schema (see DESIGN.md): head video, joints, commanded joints, tool point, objects, contacts."""
-    pose_fields = ("x", "y", "z", "qw", "qx", "qy", "qz")
-    return {
-        HEAD: {"dtype": "video", "shape": (height, width, 3), "names": ["height", "width", "channels"]},
-        "observation.state": {"dtype": "float32", "shape": (len(joint_names),), "names": list(joint_names)},
-        "action": {"dtype": "float32", "shape": (len(joint_names),), "names": list(joint_names)},
-        "observation.ee_pos": {"dtype": "float32", "shape": (3,), "names": ["x", "y", "z"]},
-        "observation.environment_state": {
-            "dtype": "float32",
-            "shape": (7 * len(object_names),),
-            "names": [f"{o}.{f}" for o in object_names for f in pose_fields],
-        },
-        "observation.contacts": {
-            "dtype": "float32",
-            "shape": (len(object_names),),
-            "names": list(object_names),
-        },
-    }
-
-
-def datasets_progress_bars_off() -> None:
-    import datasets
-
-    datasets.disable_progress_bars()
-
-
-def _import_lerobot():
+def import_lerobot():
+    """LeRobot, offline and quiet; returns ``LeRobotDataset``."""
     os.environ.setdefault("HF_HUB_OFFLINE", "1")
     os.environ.setdefault("SVT_LOG", "1")  # SVT-AV1: errors only
     import av
@@ -67,67 +50,175 @@ def _import_lerobot():
     av.logging.set_level(av.logging.ERROR)
     av.logging.set_libav_level(av.logging.ERROR)  # LeRobot restores FFmpeg's own logger, which prints mp4 notes
     datasets.disable_progress_bars()  # one "Map" bar per saved episode otherwise
-
     return LeRobotDataset
 
 
-class EpisodeWriter:
-    """Appends episodes to a LeRobot dataset at `root`, with commit points for crash-safe resume."""
+class SegmentWriter:
+    """Appends encoded episodes to the LeRobot dataset at ``root``; :meth:`flush` writes the pending ones."""
 
-    def __init__(self, root: Path, repo_id: str, dataset):
-        self.root, self.repo_id, self.ds = Path(root), repo_id, dataset
+    def __init__(self, root: Path, meta):
+        from lerobot.datasets.utils import update_chunk_file_indices
+
+        self.root, self.meta = Path(root), meta
+        self.pending: list[tuple[EncodedEpisode, str]] = []
+        self.total_frames = meta.total_frames
+        last = None if meta.episodes is None or len(meta.episodes) == 0 else meta.episodes[-1]
+        self.next_file: dict[str, tuple[int, int]] = {}
+        for kind, key in (("data", "data"), ("video", f"videos/{HEAD}"), ("episodes", "meta/episodes")):
+            if last is None:
+                self.next_file[kind] = (0, 0)
+            else:  # committed files are never appended to: each segment starts new ones
+                here = (int(last[f"{key}/chunk_index"]), int(last[f"{key}/file_index"]))
+                self.next_file[kind] = update_chunk_file_indices(*here, meta.chunks_size)
 
     @classmethod
-    def create(cls, root: Path, repo_id: str, fps: int, feats: dict, robot_type: str) -> EpisodeWriter:
-        lerobot_dataset = _import_lerobot()
-        ds = lerobot_dataset.create(
-            repo_id=repo_id, fps=fps, features=feats, root=root, robot_type=robot_type, use_videos=True, **STREAMING
-        )
-        return cls(root, repo_id, ds)
+    def create(cls, root: Path, repo_id: str, fps: int, feats: dict, robot_type: str) -> SegmentWriter:
+        import_lerobot()
+        from lerobot.datasets.dataset_metadata import LeRobotDatasetMetadata
+
+        meta = LeRobotDatasetMetadata.create(repo_id, fps, feats, robot_type=robot_type, root=root, use_videos=True)
+        return cls(root, meta)
 
     @classmethod
-    def reopen(cls, root: Path, repo_id: str) -> EpisodeWriter:
-        lerobot_dataset = _import_lerobot()
-        return cls(root, repo_id, lerobot_dataset.resume(repo_id, root=root, **STREAMING))
+    def reopen(cls, root: Path, repo_id: str) -> SegmentWriter:
+        import_lerobot()
+        from lerobot.datasets.dataset_metadata import LeRobotDatasetMetadata
+
+        return cls(root, LeRobotDatasetMetadata(repo_id, root=root))
+
+    @property
+    def features(self) -> dict:
+        return self.meta.features
 
     @property
     def num_episodes(self) -> int:
-        return self.ds.meta.total_episodes
+        return self.meta.total_episodes + len(self.pending)
 
-    def add_episode(self, frames: Frames, task: str) -> int:
-        """Write one executed trajectory; returns its episode index."""
-        index = self.ds.meta.total_episodes
-        n_obj = frames.object_poses.shape[1]
-        env_state = frames.object_poses.reshape(len(frames), 7 * n_obj)
-        for t in range(len(frames)):
-            self.ds.add_frame(
-                {
-                    HEAD: frames.images[t],
-                    "observation.state": frames.state[t],
-                    "action": frames.action[t],
-                    "observation.ee_pos": frames.ee_pos[t],
-                    "observation.environment_state": env_state[t],
-                    "observation.contacts": frames.contacts[t],
-                    "task": task,
-                }
-            )
-        # LeRobot's SuppressProgressBars (used when it loads metadata) turns the `datasets` bars back on when it
-        # exits, and save_episode would then print a "Map" bar per episode
-        datasets_progress_bars_off()
-        self.ds.save_episode()
+    def add(self, episode: EncodedEpisode, task: str) -> int:
+        """Queue one episode; returns its episode index."""
+        index = self.num_episodes
+        self.pending.append((episode, task))
+        if len(self.pending) >= MAX_SEGMENT_EPISODES:
+            self.flush()
         return index
 
-    def finalize(self) -> None:
-        """Close every open file so the dataset loads (idempotent)."""
-        if not getattr(self.ds, "_is_finalized", False):
-            self.ds.finalize()
+    def flush(self) -> None:
+        """Write the pending episodes as one segment (new data, video and episode-metadata files)."""
+        if not self.pending:
+            return
+        from lerobot.datasets.utils import DEFAULT_EPISODES_PATH, flatten_dict
 
-    def commit(self) -> dict:
-        """Finalize, describe the committed state, and reopen for appending. Returns the commit record."""
-        self.finalize()
-        record = snapshot(self.root)
-        self.ds = _import_lerobot().resume(self.repo_id, root=self.root, **STREAMING)
-        return record
+        meta, episodes = self.meta, [e for e, _ in self.pending]
+        tasks = [t for _, t in self.pending]
+        new_tasks = [t for t in dict.fromkeys(tasks) if meta.tasks is None or meta.get_task_index(t) is None]
+        if new_tasks:
+            meta.save_episode_tasks(new_tasks)
+        first_episode, first_frame = meta.total_episodes, self.total_frames
+        lengths = [len(e) for e in episodes]
+        starts = first_frame + np.concatenate([[0], np.cumsum(lengths)[:-1]])
+        positions = [
+            {
+                "index": np.arange(s, s + n),
+                "episode_index": np.full(n, first_episode + i),
+                "task_index": np.full(n, meta.get_task_index(t)),
+            }
+            for i, (s, n, t) in enumerate(zip(starts, lengths, tasks, strict=True))
+        ]
+        data_file, video_file, episodes_file = (self.next_file[k] for k in ("data", "video", "episodes"))
+        self._write_data(episodes, positions, data_file)
+        video_starts = self._write_video(episodes, video_file)
+
+        from lerobot.datasets.compute_stats import compute_episode_stats
+
+        rows, all_stats = [], []
+        for i, (episode, pos, task) in enumerate(zip(episodes, positions, tasks, strict=True)):
+            stats = {**episode.stats, **compute_episode_stats(pos, meta.features)}
+            all_stats.append(stats)
+            row = {
+                "episode_index": first_episode + i,
+                "tasks": [task],
+                "length": lengths[i],
+                "data/chunk_index": data_file[0],
+                "data/file_index": data_file[1],
+                "dataset_from_index": int(starts[i]),
+                "dataset_to_index": int(starts[i] + lengths[i]),
+                f"videos/{HEAD}/chunk_index": video_file[0],
+                f"videos/{HEAD}/file_index": video_file[1],
+                f"videos/{HEAD}/from_timestamp": video_starts[i],
+                f"videos/{HEAD}/to_timestamp": video_starts[i] + episode.duration_s,
+            }
+            row.update(flatten_dict({"stats": stats}))
+            row["meta/episodes/chunk_index"], row["meta/episodes/file_index"] = episodes_file
+            rows.append(row)
+        _write_parquet_rows(
+            rows, self.root / DEFAULT_EPISODES_PATH.format(chunk_index=episodes_file[0], file_index=episodes_file[1])
+        )
+        self._write_info_and_stats(episodes, all_stats, first_episode == 0)
+        self.total_frames += sum(lengths)
+        self.pending.clear()
+        self._advance()
+
+    def _write_data(self, episodes: list[EncodedEpisode], positions: list[dict], file: tuple[int, int]) -> None:
+        import datasets
+        import pyarrow.parquet as pq
+        from lerobot.datasets.feature_utils import get_hf_features_from_features
+
+        hf_features = get_hf_features_from_features(self.meta.features)
+        columns = {
+            key: np.concatenate([{**e.columns, **p}[key] for e, p in zip(episodes, positions, strict=True)])
+            for key in hf_features
+        }
+        table = datasets.Dataset.from_dict(columns, features=hf_features, split="train").with_format("arrow")[:]
+        path = self.root / self.meta.data_path.format(chunk_index=file[0], file_index=file[1])
+        path.parent.mkdir(parents=True, exist_ok=True)
+        pq.write_table(table, path, compression="snappy", use_dictionary=True)
+
+    def _write_video(self, episodes: list[EncodedEpisode], file: tuple[int, int]) -> list[float]:
+        """One mp4 for the segment; returns each episode's start time in it."""
+        from lerobot.datasets.video_utils import concatenate_video_files
+
+        path = self.root / self.meta.video_path.format(video_key=HEAD, chunk_index=file[0], file_index=file[1])
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryDirectory(prefix="babblegen-segment-") as tmp:
+            parts = []
+            for i, e in enumerate(episodes):
+                parts.append(Path(tmp) / f"{i:06d}.mp4")
+                parts[-1].write_bytes(e.video)
+            concatenate_video_files(parts, path)
+        durations = [e.duration_s for e in episodes]
+        return [float(x) for x in np.concatenate([[0.0], np.cumsum(durations)[:-1]])]
+
+    def _write_info_and_stats(self, episodes: list[EncodedEpisode], stats: list[dict], first: bool) -> None:
+        from lerobot.configs import rgb_encoder_defaults
+        from lerobot.datasets.compute_stats import aggregate_stats
+        from lerobot.datasets.io_utils import write_info, write_stats
+
+        meta = self.meta
+        if first:  # video codec details, read from the first video file as LeRobot's writer does
+            meta.update_video_info(HEAD, video_encoder=rgb_encoder_defaults())
+        meta.info.total_episodes += len(episodes)
+        meta.info.total_frames += sum(len(e) for e in episodes)
+        meta.info.total_tasks = len(meta.tasks)
+        meta.info.splits = {"train": f"0:{meta.info.total_episodes}"}
+        write_info(meta.info, meta.root)
+        meta.stats = aggregate_stats(([meta.stats] if meta.stats is not None else []) + stats)
+        write_stats(meta.stats, meta.root)
+
+    def _advance(self) -> None:
+        from lerobot.datasets.utils import update_chunk_file_indices
+
+        for kind, here in self.next_file.items():
+            self.next_file[kind] = update_chunk_file_indices(*here, self.meta.chunks_size)
+
+
+def _write_parquet_rows(rows: list[dict], path: Path) -> None:
+    """Episode-metadata rows as LeRobot's metadata writer stores them (numpy values as lists)."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    columns = {k: [r[k].tolist() if isinstance(r[k], np.ndarray) else r[k] for r in rows] for k in rows[0]}
+    path.parent.mkdir(parents=True, exist_ok=True)
+    pq.write_table(pa.Table.from_pydict(columns), path, compression="snappy", use_dictionary=True)
 
 
 class LeRobotSink(Sink):
@@ -141,29 +232,30 @@ class LeRobotSink(Sink):
         if state is None:
             if self.root.exists() and not any(self.root.iterdir()):
                 self.root.rmdir()  # LeRobot refuses an existing root, even an empty one
-            self.writer = EpisodeWriter.create(self.root, repo_id, **(create or {}))
+            self.writer = SegmentWriter.create(self.root, repo_id, **(create or {}))
         else:
             rollback(self.root, state)
-            self.writer = EpisodeWriter.reopen(self.root, repo_id)
+            self.writer = SegmentWriter.reopen(self.root, repo_id)
 
     def write(self, record: AttemptRecord) -> None:
         expected = record.row.get("episode_index")
         if expected is None:
             return
         t = time.perf_counter()
-        index = self.writer.add_episode(record.rollout.frames, self.task_text)
+        encoded = getattr(record.rollout, "prepared", {}).get(self.name)
+        if encoded is None:  # encoded here when no worker did
+            encoded = encode_episode(record.rollout.frames, self.writer.meta.fps, self.writer.features)
+        index = self.writer.add(encoded, self.task_text)
         record.row["timings"]["write"] = round(time.perf_counter() - t, 5)
         if index != expected:
             raise RuntimeError(f"the dataset holds {index} episodes where the run expected {expected}")
 
     def commit(self, counters: dict[str, int], final: bool = False) -> dict:
-        if final:
-            self.writer.finalize()
-            return snapshot(self.root)
-        return self.writer.commit()
+        self.writer.flush()
+        return snapshot(self.root)
 
     def close(self) -> None:
-        self.writer.finalize()
+        self.writer.flush()
 
 
 def snapshot(root: Path) -> dict:
@@ -208,7 +300,7 @@ def rollback(root: Path, record: dict) -> list[str]:
         if name not in record["meta"] and (root / name).exists():
             (root / name).unlink()
             removed.append(name)
-    # temporary frames or streamed video LeRobot kept for an episode that was never saved
+    # temporary frames or streamed video left by LeRobot's own writer (datasets made before segment writing)
     leftovers = [root / "images"] + [
         d for d in root.glob("tmp*") if d.is_dir() and all(f.name.endswith("_streaming.mp4") for f in d.iterdir())
     ]
@@ -221,7 +313,7 @@ def rollback(root: Path, record: dict) -> list[str]:
 
 def load_dataset(root: str | Path, repo_id: str = "local/babblegen"):
     """Open a finished dataset for reading with LeRobot (offline)."""
-    return _import_lerobot()(repo_id, root=Path(root))
+    return import_lerobot()(repo_id, root=Path(root))
 
 
 def episode_frame_range(ds, episode_index: int) -> tuple[int, int]:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -53,6 +54,7 @@ class Rollout:
     displacement: np.ndarray | None = None  # (n_objects,) metres between start and final position
     final_poses: np.ndarray | None = None  # (n_objects, 7)
     timings: dict[str, float] = field(default_factory=dict)  # seconds: ik, plan, sim, render, total
+    prepared: dict[str, Any] = field(default_factory=dict)  # sink name -> what it needs, made where the rollout ran
 
     @property
     def before_image(self) -> np.ndarray | None:

@@ -196,6 +196,10 @@ class World:
             for b in self._object_bodies
         )
 
+    def warm_up(self) -> None:
+        """Render one frame: the first one compiles the renderer's shaders (about 9 s on lavapipe)."""
+        self._render()
+
     def _render(self) -> np.ndarray:
         self.sim.scene.update_render()
         self._camera.capture()

@@ -28,8 +28,18 @@ columns), `layout` (recording streams and the viewer layout), `sink` (the run's 
 
 from __future__ import annotations
 
+from .columns import JpegFrames
 from .scene import Scene
 from .sink import INDEX, RerunSink, recording_files
 from .view import ViewerError, default_view_file, view_dataset
 
-__all__ = ["INDEX", "RerunSink", "Scene", "ViewerError", "default_view_file", "recording_files", "view_dataset"]
+__all__ = [
+    "INDEX",
+    "JpegFrames",
+    "RerunSink",
+    "Scene",
+    "ViewerError",
+    "default_view_file",
+    "recording_files",
+    "view_dataset",
+]

@@ -31,6 +31,16 @@ def encode_jpeg(images: np.ndarray, quality: int = JPEG_QUALITY) -> list[bytes]:
     return out
 
 
+class JpegFrames:
+    """The head-camera frames as JPEG bytes: a picklable step for the worker-side preparers."""
+
+    def __init__(self, quality: int = JPEG_QUALITY):
+        self.quality = quality
+
+    def __call__(self, frames: Any) -> list[bytes]:
+        return encode_jpeg(frames.images, self.quality)
+
+
 @dataclass
 class EpisodeData:
     """One executed trajectory, frame 0 = before the movement, last frame = after it."""

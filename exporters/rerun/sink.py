@@ -103,7 +103,7 @@ class RerunSink(Sink):
                 ee_pos=frames.ee_pos,
                 object_poses=frames.object_poses,
                 contacts=frames.contacts,
-                images=frames.images,
+                images=getattr(rollout, "prepared", {}).get(self.name, frames.images),  # JPEGs from a worker
                 fps=self._fps,
                 start_index=self.columns.tally.frames,
                 attempt=int(row["attempt"]),

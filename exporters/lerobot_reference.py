@@ -1,0 +1,63 @@
+"""LeRobot's own per-episode writer (``add_frame`` + ``save_episode``), kept as the reference.
+
+babblegen writes its datasets with the segment writer in ``exporters/lerobot.py``, which appends episodes
+encoded in the workers. This module writes the same frames the way LeRobot's recording tools do; the tests
+require both to give the same dataset, and ``benchmarks/bench_writer.py`` compares their cost.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from babblegen.exporters.lerobot import import_lerobot
+from babblegen.exporters.lerobot_encoding import HEAD
+from babblegen.world.rollout import Frames
+
+# Frames go straight to an encoder thread (no PNG round trip). LeRobot drops frames when this queue is full,
+# and an episode's frames arrive at once, so it holds any episode.
+STREAMING = {"streaming_encoding": True, "encoder_queue_maxsize": 100_000}
+
+
+class ReferenceWriter:
+    """Appends episodes to a new LeRobot dataset at `root` through ``LeRobotDataset.save_episode``."""
+
+    def __init__(self, root: Path, repo_id: str, dataset):
+        self.root, self.repo_id, self.ds = Path(root), repo_id, dataset
+
+    @classmethod
+    def create(cls, root: Path, repo_id: str, fps: int, feats: dict, robot_type: str) -> ReferenceWriter:
+        lerobot_dataset = import_lerobot()
+        ds = lerobot_dataset.create(
+            repo_id=repo_id, fps=fps, features=feats, root=root, robot_type=robot_type, use_videos=True, **STREAMING
+        )
+        return cls(root, repo_id, ds)
+
+    def add_episode(self, frames: Frames, task: str) -> int:
+        """Write one executed trajectory; returns its episode index."""
+        index = self.ds.meta.total_episodes
+        n_obj = frames.object_poses.shape[1]
+        env_state = frames.object_poses.reshape(len(frames), 7 * n_obj)
+        for t in range(len(frames)):
+            self.ds.add_frame(
+                {
+                    HEAD: frames.images[t],
+                    "observation.state": frames.state[t],
+                    "action": frames.action[t],
+                    "observation.ee_pos": frames.ee_pos[t],
+                    "observation.environment_state": env_state[t],
+                    "observation.contacts": frames.contacts[t],
+                    "task": task,
+                }
+            )
+        # LeRobot's SuppressProgressBars (used when it loads metadata) turns the `datasets` bars back on when it
+        # exits, and save_episode would then print a "Map" bar per episode
+        import datasets
+
+        datasets.disable_progress_bars()
+        self.ds.save_episode()
+        return index
+
+    def finalize(self) -> None:
+        """Close every open file so the dataset loads (idempotent)."""
+        if not getattr(self.ds, "_is_finalized", False):
+            self.ds.finalize()

@@ -1,0 +1,118 @@
+"""The segment writer against LeRobot's own writer: the same frames give the same dataset.
+
+babblegen appends episodes encoded in its workers and writes them in segments (exporters/lerobot.py); LeRobot's
+recording path is ``add_frame`` + ``save_episode`` (exporters/lerobot_reference.py). A user loading either with
+``LeRobotDataset`` must get the same frames, images, episode table, info and statistics.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from babblegen.exporters.lerobot import SegmentWriter, features, load_dataset, rollback, snapshot
+from babblegen.exporters.lerobot_encoding import encode_episode
+from babblegen.exporters.lerobot_reference import ReferenceWriter
+from babblegen.world.rollout import Frames
+
+FPS, SIDE = 10, 64
+JOINTS, OBJECTS = [f"joint_{i}" for i in range(7)], ["gray_box", "can", "blue_box", "ball"]
+TASK = "noveb babbling in a test"
+LENGTHS = [7, 12, 24, 3, 15]  # a 3-frame episode too: the shortest movement LeRobot's stats accept
+
+
+def synthetic_frames(length: int, seed: int) -> Frames:
+    """Smoothly moving colour ramps (video-like, so the encoder behaves as on camera frames) and random
+    recordings."""
+    rng = np.random.default_rng(seed)
+    yy, xx = np.mgrid[0:SIDE, 0:SIDE]
+    images = np.stack(
+        [
+            np.stack([(xx * 4 + t * 9 + seed * 30) % 256, (yy * 4 + t * 5) % 256, np.full_like(xx, seed * 40)], -1)
+            for t in range(length)
+        ]
+    ).astype(np.uint8)
+
+    def f32(*shape):
+        return rng.normal(size=shape).astype(np.float32)
+
+    return Frames(
+        state=f32(length, 7),
+        action=f32(length, 7),
+        ee_pos=f32(length, 3),
+        object_poses=f32(length, 4, 7),
+        contacts=(rng.random((length, 4)) > 0.8).astype(np.float32),
+        images=images,
+    )
+
+
+@pytest.fixture(scope="module")
+def datasets(tmp_path_factory):
+    """The same five episodes through LeRobot's writer, and through the segment writer in two segments with a
+    resume between them that rolls back an uncommitted segment."""
+    root = tmp_path_factory.mktemp("writers")
+    episodes = [synthetic_frames(n, seed) for seed, n in enumerate(LENGTHS)]
+    feats = features(JOINTS, OBJECTS, SIDE, SIDE)
+
+    reference = ReferenceWriter.create(root / "reference", "test/reference", FPS, feats, "pr2_arm")
+    for frames in episodes:
+        reference.add_episode(frames, TASK)
+    reference.finalize()
+
+    ours = root / "segments"
+    writer = SegmentWriter.create(ours, "test/segments", FPS, feats, "pr2_arm")
+    for frames in episodes[:2]:
+        writer.add(encode_episode(frames, FPS, writer.features), TASK)
+    writer.flush()
+    committed = snapshot(ours)
+    for seed in (7, 8):  # written after the commit point, then lost in a crash
+        writer.add(encode_episode(synthetic_frames(5, seed), FPS, writer.features), TASK)
+    writer.flush()
+    rollback(ours, committed)
+    writer = SegmentWriter.reopen(ours, "test/segments")
+    for frames in episodes[2:]:
+        writer.add(encode_episode(frames, FPS, writer.features), TASK)
+    writer.flush()
+    return load_dataset(root / "reference"), load_dataset(ours)
+
+
+def test_every_frame_and_image_is_the_same(datasets):
+    reference, ours = datasets
+    assert len(ours) == len(reference) == sum(LENGTHS)
+    for i in range(len(reference)):
+        want, got = reference[i], ours[i]
+        assert set(got) == set(want)
+        for key, value in want.items():
+            if key == "task":
+                assert got[key] == value == TASK
+            else:  # the decoded video frames too: the encoder is LeRobot's, with LeRobot's settings
+                np.testing.assert_array_equal(np.asarray(got[key]), np.asarray(value), err_msg=f"frame {i} {key}")
+
+
+def test_the_episode_table_matches(datasets):
+    reference, ours = datasets
+    want, got = reference.meta.episodes, ours.meta.episodes
+    assert got.column_names == want.column_names
+    assert got["length"] == LENGTHS
+    for column in ("episode_index", "tasks", "length", "dataset_from_index", "dataset_to_index"):
+        assert got[column] == want[column]
+    # our episodes sit in two segment files, LeRobot's in one: each episode spans the same video time
+    video = "videos/observation.images.head"
+    durations = [np.subtract(e[f"{video}/to_timestamp"], e[f"{video}/from_timestamp"]) for e in (want, got)]
+    np.testing.assert_allclose(durations[1], durations[0], atol=1e-9)
+    np.testing.assert_allclose(durations[0], np.asarray(LENGTHS) / FPS, atol=1e-9)
+    assert got["data/file_index"] == [0, 0, 1, 1, 1]  # a new file per segment, the rolled-back one reused
+
+
+def test_info_and_statistics_match(datasets):
+    reference, ours = datasets
+    info = [json.loads((d.root / "meta/info.json").read_text()) for d in (reference, ours)]
+    assert info[1] == info[0]
+    stats = [json.loads((d.root / "meta/stats.json").read_text()) for d in (reference, ours)]
+    assert set(stats[1]) == set(stats[0])
+    for key, per_stat in stats[0].items():
+        assert set(stats[1][key]) == set(per_stat)
+        for name, value in per_stat.items():  # aggregated in a different order: rounding differences only
+            np.testing.assert_allclose(stats[1][key][name], value, rtol=1e-9, atol=1e-12, err_msg=f"{key} {name}")
