@@ -47,6 +47,9 @@ class Interrupts:
         if self._depth and self.pending is None:
             self.pending = name
             return
+        # Recorded as well: Python drops an exception raised while a __del__ runs (the simulator frees its old
+        # scene on every reset), and then the end of the next protected section raises it again.
+        self.pending = self.pending or name
         raise Interrupted(name)
 
     @contextmanager

@@ -6,11 +6,14 @@ take to run it (each rollout costs its recorded seconds), while the coordinator 
 real: descriptor, novelty and selection (`tell`), LeRobot writing, the sidecar, Rerun and commit points. The
 run loop is the real `Run`; only the evaluator is replaced.
 
-Reported per W: executed episodes per second, what W workers could deliver (W / seconds per executed
-rollout), the share of that the coordinator keeps up with, and where the coordinator's time goes. The curve
-is saved as a PNG (episodes/s against workers fed).
+Reported per population and W: executed episodes per second, what W workers could deliver (W / seconds per
+executed rollout), the share of that the run keeps up with, how busy the coordinator was, and where its time
+goes. W = 0 hands every batch back at once: what the coordinator sustains alone. The curve is saved as a PNG
+(episodes/s against workers fed). Beyond a few workers NovEB's generations, not the coordinator, set the
+pace: a generation is told before the next is asked, so a run has at most two generations in flight.
 
-    python benchmarks/bench_coordinator.py --attempts 240 --workers 1 2 4 8 16 32 --plot docs/images/coordinator.png
+    python benchmarks/bench_coordinator.py --attempts 480 --workers 0 1 2 4 8 16 32 --population 12 96 \
+        --plot docs/images/coordinator.png
 """
 
 from __future__ import annotations
@@ -139,26 +142,41 @@ def _first_of_generation(rows: list[dict]) -> set[int]:
 
 
 def plot(results: list[dict], per_executed: float, width: int, path: Path) -> None:
-    """Episodes/s against workers fed, beside what the workers would deliver."""
+    """Episodes/s against workers fed, one line per population, beside what the workers would deliver and what
+    the coordinator sustains alone (workers 0)."""
     from matplotlib.figure import Figure
     from matplotlib.ticker import FixedLocator, NullLocator, ScalarFormatter
 
-    fig = Figure(figsize=(5, 3.2), layout="constrained")
+    fig = Figure(figsize=(5.4, 3.4), layout="constrained")
     ax = fig.subplots()
-    ws = [r["workers"] for r in results]
-    ax.plot(ws, [r["episodes_per_s"] for r in results], "o-", label="one coordinator")
-    ax.plot(ws, [w / per_executed for w in ws], "--", color="gray", label="what the workers deliver")
+    fed = sorted({r["workers"] for r in results if r["workers"]})
+    for pop in sorted({r["population"] for r in results}):
+        mine = [r for r in results if r["population"] == pop]
+        line = [r for r in mine if r["workers"]]
+        (handle,) = ax.plot([r["workers"] for r in line], [r["episodes_per_s"] for r in line], "o-")
+        handle.set_label(f"NovEB, population {pop}")
+        for r in mine:
+            if not r["workers"]:
+                ax.axhline(r["episodes_per_s"], color=handle.get_color(), ls=":", lw=1)
+                ax.annotate(
+                    f"coordinator alone, population {pop}: {r['episodes_per_s']:.0f}/s",
+                    (fed[0], r["episodes_per_s"]),
+                    textcoords="offset points",
+                    xytext=(2, 3),
+                    fontsize=7,
+                )
+    ax.plot(fed, [w / per_executed for w in fed], "--", color="gray", label="what the workers deliver")
     ax.set_xscale("log", base=2)
     ax.set_yscale("log")
-    ax.xaxis.set_major_locator(FixedLocator(ws))
-    ax.yaxis.set_major_locator(FixedLocator([1, 2, 5, 10, 20, 50, 100]))
+    ax.xaxis.set_major_locator(FixedLocator(fed))
+    ax.yaxis.set_major_locator(FixedLocator([1, 2, 5, 10, 20, 50, 100, 200]))
     ax.yaxis.set_minor_locator(NullLocator())
     for axis in (ax.xaxis, ax.yaxis):
         axis.set_major_formatter(ScalarFormatter())
     ax.set_xlabel("workers fed")
     ax.set_ylabel("executed episodes / s")
-    ax.legend()
-    ax.set_title(f"one coordinator's capacity ({width}x{width} video)", fontsize=9)
+    ax.legend(fontsize=7, loc="lower right")
+    ax.set_title(f"one coordinator ({width}x{width} video)", fontsize=9)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=120)
 

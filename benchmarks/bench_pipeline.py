@@ -1,18 +1,20 @@
-"""Whole-pipeline throughput, measured in one run: 1 worker, 1 and 2 worker processes, a local Ray cluster.
+"""Whole-pipeline throughput against the machine's simulation limit, measured in one run.
 
-Every configuration runs the same seed and number of attempts through `babblegen generate` (real rollouts,
-LeRobot writing, sidecar, Rerun), so they execute the same trajectories. Reported: the split of a rollout's
-time; per configuration, attempts and executed trajectories per second in the steady state, and "vs bare",
-the pipeline's seconds per executed trajectory over the bare simulation + rendering cost of the same
-trajectories; the speed-up over 1 worker; the projected wall time of the paper's full run (24,000 attempts).
-"1 process" runs the single worker in its own process, so the writer overlaps it.
+1. ``babblegen generate`` with its defaults (NovEB, LeRobot + sidecar + Rerun, commit points) and ``--workers W``
+   for ``--attempts`` attempts: executed trajectories and attempts per second in the steady state (after the
+   first generation, which includes starting the workers), and over the whole wall time.
+2. The same run's executed genomes replayed in one quiet process (`World.rollout`, renderer warmed up, one
+   rendering and one torch thread as in a worker): the bare seconds per trajectory of simulating and rendering.
+3. The ratio ``executed/s / (W / bare s)``: the share of what W cores could simulate that the pipeline delivers
+   as written episodes (episode encoding, novelty, selection, writing and commits included).
 
-    python benchmarks/bench_pipeline.py --attempts 96
+    python benchmarks/bench_pipeline.py --attempts 240 --workers 2
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import shutil
 import tempfile
 import time
@@ -21,27 +23,15 @@ from pathlib import Path
 import numpy as np
 
 
-def run(
-    out: Path, attempts: int, seed: int, workers: int, ray: str | None, rerun: bool, one_process: bool = False
-) -> tuple[float, list[dict]]:
-    """One `generate` run; `one_process` puts the single worker in its own process (the writer then overlaps)."""
-    import babblegen.evaluation as evaluation
+def generate(out: Path, attempts: int, seed: int, workers: int) -> tuple[float, list[dict]]:
     from babblegen.config import RunConfig
     from babblegen.exporters.sidecar import read_attempts
-    from babblegen.parallel import ProcessEvaluator
     from babblegen.run import Run
 
-    cfg = RunConfig(seed=seed, max_attempts=attempts, workers=workers, ray=ray, rerun=rerun)
-    local = evaluation.LocalEvaluator
-    if one_process:
-        evaluation.LocalEvaluator = lambda task, settings, run_seed: ProcessEvaluator(task, settings, run_seed, 1)
-    try:
-        t = time.perf_counter()
-        Run.start(out, cfg).execute(progress=False, echo=lambda *_: None)
-        wall = time.perf_counter() - t
-    finally:
-        evaluation.LocalEvaluator = local
-    return wall, read_attempts(out)
+    cfg = RunConfig(seed=seed, max_attempts=attempts, workers=workers)
+    t = time.perf_counter()
+    Run.start(out, cfg).execute(progress=False, echo=lambda *_: None)
+    return time.perf_counter() - t, read_attempts(out)
 
 
 def steady_rate(rows: list[dict]) -> tuple[float, float]:
@@ -52,45 +42,56 @@ def steady_rate(rows: list[dict]) -> tuple[float, float]:
     return len(later) / seconds, sum(r["feasible"] for r in later) / seconds
 
 
+def replay(rows: list[dict], seed: int, limit: int) -> list[float]:
+    """Seconds per executed trajectory, the run's executed genomes replayed in this process, as its workers ran
+    them (same per-attempt seeds), with nothing else running."""
+    import torch
+
+    torch.set_num_threads(1)
+    from babblegen.evaluation import seeded_rollout
+    from babblegen.tasks import DEFAULT_TASK, get_task
+    from babblegen.world.rollout import Command
+    from babblegen.world.world import World
+
+    world = World(get_task(DEFAULT_TASK), seed=seed)
+    world.warm_up()
+    seconds = []
+    for r in [r for r in rows if r["feasible"]][:limit]:
+        t = time.perf_counter()
+        rollout = seeded_rollout(world, Command(r["kind"], np.asarray(r["genome"], float)), seed, r["attempt"])
+        seconds.append(time.perf_counter() - t)
+        assert rollout.feasible, f"attempt {r['attempt']} did not replay"
+    world.close()
+    return seconds
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--attempts", type=int, default=96)
+    p.add_argument("--attempts", type=int, default=240)
+    p.add_argument("--workers", type=int, default=2)
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--no-ray", action="store_true")
-    p.add_argument("--no-rerun", action="store_true")
+    p.add_argument("--replay", type=int, default=80, help="executed genomes replayed for the bare cost")
     args = p.parse_args()
-    tmp = Path(tempfile.mkdtemp())
-    configs = [("1 worker", 1, None, False), ("1 process", 1, None, True), ("2 workers", 2, None, False)]
-    if not args.no_ray:
-        configs.append(("Ray, 2 actors", 2, "auto", False))
-    results = {}
-    for name, workers, ray, one_process in configs:
-        out = tmp / name.replace(" ", "_").replace(",", "")
-        results[name] = run(out, args.attempts, args.seed, workers, ray, not args.no_rerun, one_process)
+    os.environ.setdefault("LP_NUM_THREADS", "1")  # before the renderer starts: one thread, as in a worker
 
-    base_rows = results["1 worker"][1]
-    executed = [r for r in base_rows if r["feasible"]]
-    stages = ("ik", "plan", "sim", "render", "descriptor", "write")
-    split = {s: sum(r["timings"].get(s, 0.0) for r in executed) / len(executed) for s in stages}
-    bare = split["sim"] + split["render"]
-    print(f"{len(base_rows)} attempts, {len(executed)} executed, seed {args.seed}")
-    print("time split with 1 worker (s per executed trajectory):")
-    for s in stages:
-        print(f"  {s:>10}: {split[s]:.3f}")
-    print(f"  bare sim + render: {bare:.3f} s per executed trajectory")
-    print("steady state (after the first generation, which includes starting the workers):")
-    print(f"{'config':>14} {'wall s':>7} {'att/s':>6} {'exec/s':>7} {'s/exec':>7} {'vs bare':>8} {'speed-up':>9}")
-    rates = {name: steady_rate(rows) for name, (_, rows) in results.items()}
-    for name, (wall, _rows) in results.items():
-        att_s, exec_s = rates[name]
-        print(
-            f"{name:>14} {wall:7.1f} {att_s:6.2f} {exec_s:7.2f} {1 / exec_s:7.3f} {1 / exec_s / bare:8.2f} "
-            f"{exec_s / rates['1 worker'][1]:9.2f}"
-        )
-    same = all([r["descriptor"] for r in rows] == [r["descriptor"] for r in base_rows] for _, rows in results.values())
-    print(f"same descriptors in every configuration: {same}")
-    best = max(rates.values())[0]
-    print(f"projected paper run (24,000 attempts) at the best steady rate: {24000 / best / 3600:.1f} h")
+    tmp = Path(tempfile.mkdtemp())
+    wall, rows = generate(tmp / "run", args.attempts, args.seed, args.workers)
+    att_s, exec_s = steady_rate(rows)
+    executed = [r for r in rows if r["feasible"]]
+    bare = float(np.mean(replay(rows, args.seed, args.replay)))
+    limit = args.workers / bare
+    later = executed[len(executed) // 10 :]  # past the first rollouts
+    split = {k: float(np.mean([r["timings"].get(k, 0.0) for r in later])) for k in ("total", "render", "prepare")}
+    frames = float(np.mean([r["n_frames"] for r in later]))
+
+    print(f"{len(rows)} attempts, {len(executed)} executed, seed {args.seed}, {args.workers} workers")
+    whole = f"{len(rows) / wall:.2f} attempts/s, {len(executed) / wall:.2f} executed/s"
+    print(f"wall {wall:.1f} s (start-up included): {whole}")
+    print(f"steady state: {att_s:.2f} attempts/s, {exec_s:.2f} executed trajectories/s")
+    print(f"in the run, per executed trajectory: rollout {split['total']:.3f} s (render {split['render']:.3f} s, ")
+    print(f"  {split['render'] / frames * 1e3:.1f} ms per frame), episode preparation {split['prepare']:.3f} s")
+    print(f"bare, replayed in one process: {bare:.3f} s per trajectory -> {args.workers} cores: {limit:.2f}/s")
+    print(f"ratio executed/s / ({args.workers} / bare s): {exec_s / limit:.2f}")
     shutil.rmtree(tmp)
 
 

@@ -1,10 +1,12 @@
-"""Cost of saving one episode as the dataset grows (it must stay flat), and the writer's memory.
+"""What writing one episode costs the coordinator: LeRobot's own writer against babblegen's segment writer, in
+one run, on the same real rollout's frames; and whether the cost stays flat as the dataset grows.
 
-Writes N copies of a real rollout's frames through babblegen's EpisodeWriter (LeRobot's own writer with
-commit points every `--commit-every` episodes) and reports the mean save time and the process RSS over the
-first and last windows of episodes.
+- reference: ``add_frame`` + ``save_episode`` per episode (LeRobot's recording path), all in the coordinator.
+- segments: the worker encodes the episode (video, statistics: ``encode_episode``), the coordinator appends it
+  and writes a segment every ``--commit-every`` episodes (``SegmentWriter``). Reported apart: the worker's
+  seconds and the coordinator's (append + its share of the segment writes), over the first and last windows.
 
-    python benchmarks/bench_writer.py --episodes 1000 --commit-every 120
+    python benchmarks/bench_writer.py --episodes 1000 --reference-episodes 60 --commit-every 40
 """
 
 from __future__ import annotations
@@ -29,12 +31,15 @@ def rss_mb() -> float:
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--episodes", type=int, default=1000)
-    p.add_argument("--commit-every", type=int, default=120, help="episodes per commit (10 generations of 12)")
-    p.add_argument("--window", type=int, default=50)
+    p.add_argument("--episodes", type=int, default=1000, help="episodes through the segment writer")
+    p.add_argument("--reference-episodes", type=int, default=60, help="episodes through LeRobot's writer")
+    p.add_argument("--commit-every", type=int, default=40, help="episodes per segment (about 10 generations)")
+    p.add_argument("--window", type=int, default=200)
     args = p.parse_args()
 
-    from babblegen.exporters.lerobot import EpisodeWriter, features
+    from babblegen.exporters.lerobot import SegmentWriter, features
+    from babblegen.exporters.lerobot_encoding import encode_episode
+    from babblegen.exporters.lerobot_reference import ReferenceWriter
     from babblegen.tasks import get_task
     from babblegen.world.rollout import Command
     from babblegen.world.world import World
@@ -46,34 +51,45 @@ def main() -> None:
     world.close()
     h, w = frames.images.shape[1:3]
     print(f"episode: {len(frames)} frames of {w}x{h}")
-
-    root = Path(tempfile.mkdtemp()) / "ds"
+    tmp = Path(tempfile.mkdtemp())
     feats = features(world.kin.joint_names, task.object_names, h, w)
-    writer = EpisodeWriter.create(root, "bench/writer", 10, feats, "pr2_like_arm")
-    save, mem, commits = [], [], []
+
+    reference = ReferenceWriter.create(tmp / "reference", "bench/reference", 10, feats, "pr2_arm")
+    ref = []
+    for _ in range(args.reference_episodes):
+        t = time.perf_counter()
+        reference.add_episode(frames, "bench")
+        ref.append(time.perf_counter() - t)
+    reference.finalize()
+
+    writer = SegmentWriter.create(tmp / "segments", "bench/segments", 10, feats, "pr2_arm")
+    worker, coordinator, mem = [], [], []
     for i in range(args.episodes):
         t = time.perf_counter()
-        writer.add_episode(frames, "bench")
-        save.append(time.perf_counter() - t)
-        mem.append(rss_mb())
+        encoded = encode_episode(frames, 10, writer.features)
+        worker.append(time.perf_counter() - t)
+        t = time.perf_counter()
+        writer.add(encoded, "bench")
         if (i + 1) % args.commit_every == 0:
-            t = time.perf_counter()
-            writer.commit()
-            commits.append(time.perf_counter() - t)
-    writer.finalize()
-    n = args.window
-    first, last = np.mean(save[:n]), np.mean(save[-n:])
+            writer.flush()
+        coordinator.append(time.perf_counter() - t)
+        mem.append(rss_mb())
+    writer.flush()
+
+    n = min(args.window, args.episodes // 2)
+    ms = 1e3
+    print(f"LeRobot's writer, coordinator per episode: {np.mean(ref[5:]) * ms:.1f} ms (mean of episodes 5+)")
+    first, last = np.mean(coordinator[:n]), np.mean(coordinator[-n:])
     print(
-        f"save per episode, episodes 0-{n - 1}: {first * 1e3:.0f} ms, "
-        f"last {n}: {last * 1e3:.0f} ms (x{last / first:.2f})"
+        f"segment writer, coordinator per episode: first {n} {first * ms:.1f} ms, last {n} {last * ms:.1f} ms "
+        f"(x{last / first:.2f}); worker per episode {np.mean(worker) * ms:.1f} ms"
     )
+    print(f"coordinator speed-up: x{np.mean(ref[5:]) / np.mean(coordinator):.0f}")
     print(f"RSS after {n} episodes: {mem[n - 1]:.0f} MB, after {len(mem)}: {mem[-1]:.0f} MB")
-    if commits:
-        print(f"commit point (finalize + reopen): {np.mean(commits) * 1e3:.0f} ms on average over {len(commits)}")
-    files = sum(1 for _ in root.rglob("*") if _.is_file())
-    size = sum(f.stat().st_size for f in root.rglob("*") if f.is_file()) / 1e6
-    print(f"dataset: {args.episodes} episodes, {files} files, {size:.1f} MB")
-    shutil.rmtree(root.parent)
+    for name in ("reference", "segments"):
+        files = [f for f in (tmp / name).rglob("*") if f.is_file()]
+        print(f"{name}: {len(files)} files, {sum(f.stat().st_size for f in files) / 1e6:.1f} MB")
+    shutil.rmtree(tmp)
 
 
 if __name__ == "__main__":

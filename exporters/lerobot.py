@@ -36,6 +36,7 @@ __all__ = ["HEAD", "features"]  # the schema, re-exported for the sinks' users
 
 ROLLED_META = ("meta/info.json", "meta/stats.json", "meta/tasks.parquet")
 TRACKED_DIRS = ("data", "videos", "meta/episodes")
+SEGMENT_TMP = "tmp-segment-"  # the episodes' mp4s while a segment's video is made (removed by rollback)
 MAX_SEGMENT_EPISODES = 2_000  # written early past this, so memory stays bounded whatever the commit interval
 
 
@@ -179,7 +180,7 @@ class SegmentWriter:
 
         path = self.root / self.meta.video_path.format(video_key=HEAD, chunk_index=file[0], file_index=file[1])
         path.parent.mkdir(parents=True, exist_ok=True)
-        with tempfile.TemporaryDirectory(prefix="babblegen-segment-") as tmp:
+        with tempfile.TemporaryDirectory(prefix=SEGMENT_TMP, dir=self.root) as tmp:
             parts = []
             for i, e in enumerate(episodes):
                 parts.append(Path(tmp) / f"{i:06d}.mp4")
@@ -300,8 +301,9 @@ def rollback(root: Path, record: dict) -> list[str]:
         if name not in record["meta"] and (root / name).exists():
             (root / name).unlink()
             removed.append(name)
-    # temporary frames or streamed video left by LeRobot's own writer (datasets made before segment writing)
-    leftovers = [root / "images"] + [
+    # a segment's temporary mp4s; temporary frames or streamed video left by LeRobot's own writer (datasets
+    # made before segment writing)
+    leftovers = [root / "images", *root.glob(f"{SEGMENT_TMP}*")] + [
         d for d in root.glob("tmp*") if d.is_dir() and all(f.name.endswith("_streaming.mp4") for f in d.iterdir())
     ]
     for d in leftovers:

@@ -52,3 +52,18 @@ def test_previous_handlers_come_back():
     with Interrupts():
         assert signal.getsignal(signal.SIGTERM) is not before
     assert signal.getsignal(signal.SIGTERM) is before
+
+
+@pytest.mark.filterwarnings("ignore::pytest.PytestUnraisableExceptionWarning")
+def test_a_stop_dropped_by_a_destructor_is_raised_at_the_next_protected_section():
+    """Python ignores an exception raised while a ``__del__`` runs (the simulator frees its old scene on every
+    reset); a signal landing there must still stop the run."""
+
+    class Freed:
+        def __del__(self):
+            os.kill(os.getpid(), signal.SIGTERM)  # the handler's Interrupted is dropped ("Exception ignored")
+
+    with Interrupts() as stop:
+        Freed()
+        with pytest.raises(Interrupted, match="SIGTERM"), stop.protected():
+            pass
