@@ -107,8 +107,6 @@ class SegmentWriter:
         """Write the pending episodes as one segment (new data, video and episode-metadata files)."""
         if not self.pending:
             return
-        from lerobot.datasets.utils import DEFAULT_EPISODES_PATH, flatten_dict
-
         meta, episodes = self.meta, [e for e, _ in self.pending]
         tasks = [t for _, t in self.pending]
         new_tasks = [t for t in dict.fromkeys(tasks) if meta.tasks is None or meta.get_task_index(t) is None]
@@ -125,39 +123,46 @@ class SegmentWriter:
             }
             for i, (s, n, t) in enumerate(zip(starts, lengths, tasks, strict=True))
         ]
-        data_file, video_file, episodes_file = (self.next_file[k] for k in ("data", "video", "episodes"))
-        self._write_data(episodes, positions, data_file)
-        video_starts = self._write_video(episodes, video_file)
-
-        from lerobot.datasets.compute_stats import compute_episode_stats
-
-        rows, all_stats = [], []
-        for i, (episode, pos, task) in enumerate(zip(episodes, positions, tasks, strict=True)):
-            stats = {**episode.stats, **compute_episode_stats(pos, meta.features)}
-            all_stats.append(stats)
-            row = {
-                "episode_index": first_episode + i,
-                "tasks": [task],
-                "length": lengths[i],
-                "data/chunk_index": data_file[0],
-                "data/file_index": data_file[1],
-                "dataset_from_index": int(starts[i]),
-                "dataset_to_index": int(starts[i] + lengths[i]),
-                f"videos/{HEAD}/chunk_index": video_file[0],
-                f"videos/{HEAD}/file_index": video_file[1],
-                f"videos/{HEAD}/from_timestamp": video_starts[i],
-                f"videos/{HEAD}/to_timestamp": video_starts[i] + episode.duration_s,
-            }
-            row.update(flatten_dict({"stats": stats}))
-            row["meta/episodes/chunk_index"], row["meta/episodes/file_index"] = episodes_file
-            rows.append(row)
-        _write_parquet_rows(
-            rows, self.root / DEFAULT_EPISODES_PATH.format(chunk_index=episodes_file[0], file_index=episodes_file[1])
-        )
-        self._write_info_and_stats(episodes, all_stats, first_episode == 0)
+        self._write_data(episodes, positions, self.next_file["data"])
+        video_starts = self._write_video(episodes, self.next_file["video"])
+        stats = self._write_episode_table(episodes, tasks, positions, video_starts)
+        self._write_info_and_stats(episodes, stats, first_episode == 0)
         self.total_frames += sum(lengths)
         self.pending.clear()
         self._advance()
+
+    def _write_episode_table(
+        self, episodes: list[EncodedEpisode], tasks: list[str], positions: list[dict], video_starts: list[float]
+    ) -> list[dict]:
+        """The segment's rows of LeRobot's episode table (same columns, same order); returns each episode's
+        complete statistics."""
+        from lerobot.datasets.compute_stats import compute_episode_stats
+        from lerobot.datasets.utils import DEFAULT_EPISODES_PATH, flatten_dict
+
+        (data_chunk, data_file), (video_chunk, video_file) = self.next_file["data"], self.next_file["video"]
+        rows, all_stats = [], []
+        for episode, task, pos, video_start in zip(episodes, tasks, positions, video_starts, strict=True):
+            stats = {**episode.stats, **compute_episode_stats(pos, self.meta.features)}
+            all_stats.append(stats)
+            row = {
+                "episode_index": int(pos["episode_index"][0]),
+                "tasks": [task],
+                "length": len(episode),
+                "data/chunk_index": data_chunk,
+                "data/file_index": data_file,
+                "dataset_from_index": int(pos["index"][0]),
+                "dataset_to_index": int(pos["index"][-1]) + 1,
+                f"videos/{HEAD}/chunk_index": video_chunk,
+                f"videos/{HEAD}/file_index": video_file,
+                f"videos/{HEAD}/from_timestamp": video_start,
+                f"videos/{HEAD}/to_timestamp": video_start + episode.duration_s,
+            }
+            row.update(flatten_dict({"stats": stats}))
+            row["meta/episodes/chunk_index"], row["meta/episodes/file_index"] = self.next_file["episodes"]
+            rows.append(row)
+        chunk, file = self.next_file["episodes"]
+        _write_parquet_rows(rows, self.root / DEFAULT_EPISODES_PATH.format(chunk_index=chunk, file_index=file))
+        return all_stats
 
     def _write_data(self, episodes: list[EncodedEpisode], positions: list[dict], file: tuple[int, int]) -> None:
         import datasets
