@@ -121,7 +121,8 @@ class Failure:
 class PoolEvaluator(_BatchThread):
     """One scheduling-and-retry loop over ``n`` worker slots of a backend (processes or Ray actors).
 
-    Work goes one rollout at a time to whichever slot is free. The one failure policy: a rollout whose worker
+    Work goes one rollout at a time to whichever slot is free, the genomes with the most waypoints first. The
+    one failure policy: a rollout whose worker
     dies, raises a Python error or exceeds ``timeout`` seconds is counted (``failures``, and the attempt's
     ``worker_failures``), its worker is replaced by a fresh one, and it is retried, at most ``retries`` times;
     then the run stops with an error naming the attempt. Subclasses implement the four slot operations.
@@ -151,7 +152,9 @@ class PoolEvaluator(_BatchThread):
     def _run_batch(self, commands: list[Command], attempts: list[int]) -> list[Rollout]:
         results: dict[int, Rollout] = {}
         retries: dict[int, int] = {}
-        queue = deque(range(len(commands)))
+        # longest first (more waypoints, longer movements): the batch's last rollout, which the other workers wait
+        # for, is then a short one; results still come back in submission order
+        queue = deque(sorted(range(len(commands)), key=lambda i: -len(commands[i].values)))
         jobs: dict[int, tuple[int, float]] = {}  # slot -> (index in the batch, start time)
 
         def failed(slot: int, i: int, reason: str) -> None:

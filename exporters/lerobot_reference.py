@@ -1,4 +1,5 @@
-"""LeRobot's own per-episode writer (``add_frame`` + ``save_episode``), kept as the reference.
+"""LeRobot's own per-episode writer (``add_frame`` + ``save_episode``, its default settings), kept as the
+reference.
 
 babblegen writes its datasets with the segment writer in ``exporters/lerobot.py``, which appends episodes
 encoded in the workers. This module writes the same frames the way LeRobot's recording tools do; the tests
@@ -13,10 +14,6 @@ from babblegen.exporters.lerobot import import_lerobot
 from babblegen.exporters.lerobot_encoding import HEAD
 from babblegen.world.rollout import Frames
 
-# Frames go straight to an encoder thread (no PNG round trip). LeRobot drops frames when this queue is full,
-# and an episode's frames arrive at once, so it holds any episode.
-STREAMING = {"streaming_encoding": True, "encoder_queue_maxsize": 100_000}
-
 
 class ReferenceWriter:
     """Appends episodes to a new LeRobot dataset at `root` through ``LeRobotDataset.save_episode``."""
@@ -28,7 +25,7 @@ class ReferenceWriter:
     def create(cls, root: Path, repo_id: str, fps: int, feats: dict, robot_type: str) -> ReferenceWriter:
         lerobot_dataset = import_lerobot()
         ds = lerobot_dataset.create(
-            repo_id=repo_id, fps=fps, features=feats, root=root, robot_type=robot_type, use_videos=True, **STREAMING
+            repo_id=repo_id, fps=fps, features=feats, root=root, robot_type=robot_type, use_videos=True
         )
         return cls(root, repo_id, ds)
 

@@ -1,8 +1,8 @@
 """The segment writer against LeRobot's own writer: the same frames give the same dataset.
 
 babblegen appends episodes encoded in its workers and writes them in segments (exporters/lerobot.py); LeRobot's
-recording path is ``add_frame`` + ``save_episode`` (exporters/lerobot_reference.py). A user loading either with
-``LeRobotDataset`` must get the same frames, images, episode table, info and statistics.
+recording path is ``add_frame`` + ``save_episode`` with its default settings (exporters/lerobot_reference.py). A
+user loading either with ``LeRobotDataset`` must get the same frames, images, episode table, info and statistics.
 """
 
 from __future__ import annotations
@@ -115,4 +115,7 @@ def test_info_and_statistics_match(datasets):
     for key, per_stat in stats[0].items():
         assert set(stats[1][key]) == set(per_stat)
         for name, value in per_stat.items():  # aggregated in a different order: rounding differences only
-            np.testing.assert_allclose(stats[1][key][name], value, rtol=1e-9, atol=1e-12, err_msg=f"{key} {name}")
+            # except the image mean and std, which LeRobot accumulates in float32 over every pixel and babblegen
+            # computes exactly from pixel-value counts (exporters/lerobot_encoding.image_stats)
+            rtol = 1e-4 if key == "observation.images.head" and name in ("mean", "std") else 1e-9
+            np.testing.assert_allclose(stats[1][key][name], value, rtol=rtol, atol=1e-12, err_msg=f"{key} {name}")
