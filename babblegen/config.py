@@ -14,6 +14,11 @@ from typing import Any
 from babblegen.explorers.noveb import NovEBConfig
 from babblegen.world.settings import WorldSettings
 
+# The head camera's video codecs, each encoded with LeRobot's settings for it. H.264 is the default: on frames
+# like 128x128 it costs about a third of the CPU time of LeRobot's own default, SVT-AV1, for smaller files
+# (benchmarks/bench_codecs.py), and every LeRobot video backend decodes it.
+VIDEO_CODECS = ("h264", "libsvtav1")
+
 
 class ConfigError(ValueError):
     """Bad user input: reported as a one-line message and a non-zero exit."""
@@ -30,6 +35,7 @@ class RunConfig:
     workers: int = field(default_factory=lambda: default_workers())  # rollout processes: one per core
     ray: str | None = None  # None, "auto" or a cluster address
     rerun: bool = True  # write Rerun recordings beside the dataset (DIR/babblegen/rerun/)
+    video_codec: str = "h264"  # the head camera's video: "h264" or "libsvtav1" (LeRobot's default)
     noveb: NovEBConfig = field(default_factory=NovEBConfig)
     world: WorldSettings = field(default_factory=WorldSettings)
 
@@ -91,6 +97,8 @@ class RunConfig:
             raise ConfigError(f"checkpoint_every must be at least 1, got {self.checkpoint_every}")
         if self.workers < 1:
             raise ConfigError(f"workers must be at least 1, got {self.workers}")
+        if self.video_codec not in VIDEO_CODECS:
+            raise ConfigError(f"unknown video codec {self.video_codec!r}; choose one of: {', '.join(VIDEO_CODECS)}")
 
 
 RESUME_MAY_CHANGE = ("max_attempts", "generations", "workers", "ray", "rerun", "checkpoint_every")
@@ -101,6 +109,7 @@ def resumed_config(stored: dict[str, Any], overrides: dict[str, Any] | None = No
     ``max_attempts``) or run differently (workers, Ray, Rerun, commit interval) by ``overrides``, a flat dict
     of setting names from any section. Changing anything that would change the results is refused."""
     data = json.loads(json.dumps(stored))  # a deep copy
+    data.setdefault("video_codec", "libsvtav1")  # runs stored before the setting existed recorded AV1
     for key, value in (overrides or {}).items():
         if value is None:
             continue

@@ -167,7 +167,8 @@ class Run:
         from babblegen.evaluation import Preparers
         from babblegen.exporters.lerobot_encoding import EpisodeEncoder, with_default_features
 
-        steps = {"lerobot": EpisodeEncoder(self.config.world.fps, with_default_features(self._features()))}
+        cfg = self.config
+        steps = {"lerobot": EpisodeEncoder(cfg.world.fps, with_default_features(self._features()), cfg.video_codec)}
         if self.config.rerun:
             from babblegen.exporters.rerun import JpegFrames
 
@@ -184,7 +185,7 @@ class Run:
         cfg, out = self.config, self.out
         create = {"fps": cfg.world.fps, "feats": self._features(), "robot_type": self.task.robot_uid}
         makers: list[tuple[str, Any]] = [
-            ("lerobot", lambda state: LeRobotSink(state, out, repo_id, self.task_text, create)),
+            ("lerobot", lambda state: LeRobotSink(state, out, repo_id, self.task_text, create, cfg.video_codec)),
             ("sidecar", lambda state: SidecarSink(state, out)),
         ]
         if cfg.rerun:

@@ -25,10 +25,12 @@ from pathlib import Path
 import numpy as np
 
 from babblegen.exporters.lerobot_encoding import (
+    DEFAULT_VIDEO_CODEC,
     HEAD,
     EncodedEpisode,
     encode_episode,
     features,
+    video_encoder,
 )
 from babblegen.store import AttemptRecord, Sink, atomic_write
 
@@ -55,12 +57,17 @@ def import_lerobot():
 
 
 class SegmentWriter:
-    """Appends encoded episodes to the LeRobot dataset at ``root``; :meth:`flush` writes the pending ones."""
+    """Appends encoded episodes to the LeRobot dataset at ``root``; :meth:`flush` writes the pending ones.
+    ``codec`` is the video codec the episodes are encoded with (one per dataset)."""
 
-    def __init__(self, root: Path, meta):
+    def __init__(self, root: Path, meta, codec: str = DEFAULT_VIDEO_CODEC):
+        from lerobot.configs.video import VIDEO_CODECS_ALIASES
         from lerobot.datasets.utils import update_chunk_file_indices
 
-        self.root, self.meta = Path(root), meta
+        self.root, self.meta, self.codec = Path(root), meta, codec
+        recorded = (meta.features[HEAD].get("info") or {}).get("video.codec")
+        if recorded is not None and VIDEO_CODECS_ALIASES.get(recorded, recorded) != codec:
+            raise ValueError(f"{root} holds {recorded} video; it cannot take episodes encoded with {codec}")
         self.pending: list[tuple[EncodedEpisode, str]] = []
         self.total_frames = meta.total_frames
         last = None if meta.episodes is None or len(meta.episodes) == 0 else meta.episodes[-1]
@@ -73,19 +80,21 @@ class SegmentWriter:
                 self.next_file[kind] = update_chunk_file_indices(*here, meta.chunks_size)
 
     @classmethod
-    def create(cls, root: Path, repo_id: str, fps: int, feats: dict, robot_type: str) -> SegmentWriter:
+    def create(
+        cls, root: Path, repo_id: str, fps: int, feats: dict, robot_type: str, codec: str = DEFAULT_VIDEO_CODEC
+    ) -> SegmentWriter:
         import_lerobot()
         from lerobot.datasets.dataset_metadata import LeRobotDatasetMetadata
 
         meta = LeRobotDatasetMetadata.create(repo_id, fps, feats, robot_type=robot_type, root=root, use_videos=True)
-        return cls(root, meta)
+        return cls(root, meta, codec)
 
     @classmethod
-    def reopen(cls, root: Path, repo_id: str) -> SegmentWriter:
+    def reopen(cls, root: Path, repo_id: str, codec: str = DEFAULT_VIDEO_CODEC) -> SegmentWriter:
         import_lerobot()
         from lerobot.datasets.dataset_metadata import LeRobotDatasetMetadata
 
-        return cls(root, LeRobotDatasetMetadata(repo_id, root=root))
+        return cls(root, LeRobotDatasetMetadata(repo_id, root=root), codec)
 
     @property
     def features(self) -> dict:
@@ -195,13 +204,12 @@ class SegmentWriter:
         return [float(x) for x in np.concatenate([[0.0], np.cumsum(durations)[:-1]])]
 
     def _write_info_and_stats(self, episodes: list[EncodedEpisode], stats: list[dict], first: bool) -> None:
-        from lerobot.configs import rgb_encoder_defaults
         from lerobot.datasets.compute_stats import aggregate_stats
         from lerobot.datasets.io_utils import write_info, write_stats
 
         meta = self.meta
         if first:  # video codec details, read from the first video file as LeRobot's writer does
-            meta.update_video_info(HEAD, video_encoder=rgb_encoder_defaults())
+            meta.update_video_info(HEAD, video_encoder=video_encoder(self.codec))
         meta.info.total_episodes += len(episodes)
         meta.info.total_frames += sum(len(e) for e in episodes)
         meta.info.total_tasks = len(meta.tasks)
@@ -233,15 +241,23 @@ class LeRobotSink(Sink):
 
     name = "lerobot"
 
-    def __init__(self, state: dict | None, root: Path, repo_id: str, task_text: str, create: dict | None = None):
+    def __init__(
+        self,
+        state: dict | None,
+        root: Path,
+        repo_id: str,
+        task_text: str,
+        create: dict | None = None,
+        codec: str = DEFAULT_VIDEO_CODEC,
+    ):
         self.root, self.task_text = Path(root), task_text
         if state is None:
             if self.root.exists() and not any(self.root.iterdir()):
                 self.root.rmdir()  # LeRobot refuses an existing root, even an empty one
-            self.writer = SegmentWriter.create(self.root, repo_id, **(create or {}))
+            self.writer = SegmentWriter.create(self.root, repo_id, **(create or {}), codec=codec)
         else:
             rollback(self.root, state)
-            self.writer = SegmentWriter.reopen(self.root, repo_id)
+            self.writer = SegmentWriter.reopen(self.root, repo_id, codec)
 
     def write(self, record: AttemptRecord) -> None:
         expected = record.row.get("episode_index")
@@ -250,7 +266,8 @@ class LeRobotSink(Sink):
         t = time.perf_counter()
         encoded = getattr(record.rollout, "prepared", {}).get(self.name)
         if encoded is None:  # encoded here when no worker did
-            encoded = encode_episode(record.rollout.frames, self.writer.meta.fps, self.writer.features)
+            writer = self.writer
+            encoded = encode_episode(record.rollout.frames, writer.meta.fps, writer.features, writer.codec)
         index = self.writer.add(encoded, self.task_text)
         record.row["timings"]["write"] = round(time.perf_counter() - t, 5)
         if index != expected:

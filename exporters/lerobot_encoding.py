@@ -18,9 +18,11 @@ from pathlib import Path
 
 import numpy as np
 
+from babblegen.config import VIDEO_CODECS, RunConfig
 from babblegen.world.rollout import Frames
 
 HEAD = "observation.images.head"
+DEFAULT_VIDEO_CODEC = RunConfig.video_codec  # each codec with LeRobot's own settings for it (`video_encoder`)
 # Columns computed here; index, episode_index and task_index depend on the dataset and are added when written.
 POSITION_COLUMNS = ("index", "episode_index", "task_index")
 
@@ -84,17 +86,25 @@ def frame_columns(frames: Frames, fps: int, features: dict) -> dict[str, np.ndar
     return columns
 
 
-def encode_video(images: np.ndarray, fps: int) -> tuple[bytes, float]:
-    """Encode (T, H, W, 3) uint8 frames as LeRobot's ``encode_video_frames`` does in its default recording path
-    (its default RGB encoder settings, the same PyAV calls), from memory instead of PNG files. Returns the mp4
-    bytes and their duration in seconds."""
+def video_encoder(codec: str):
+    """LeRobot's encoder settings for ``codec`` (``RGBEncoderConfig``: its GOP size, CRF and preset)."""
+    from lerobot.configs.video import RGBEncoderConfig
+
+    if codec not in VIDEO_CODECS:
+        raise ValueError(f"unknown video codec {codec!r}; choose one of: {', '.join(VIDEO_CODECS)}")
+    return RGBEncoderConfig(vcodec=codec)
+
+
+def encode_video(images: np.ndarray, fps: int, codec: str = DEFAULT_VIDEO_CODEC) -> tuple[bytes, float]:
+    """Encode (T, H, W, 3) uint8 frames as LeRobot's ``encode_video_frames`` does in its recording path (its
+    settings for ``codec``, the same PyAV calls), from memory instead of PNG files. Returns the mp4 bytes and
+    their duration in seconds."""
     _quiet_codecs()
     import av
-    from lerobot.configs import rgb_encoder_defaults
     from lerobot.datasets.video_utils import get_video_duration_in_s
     from PIL import Image
 
-    encoder = rgb_encoder_defaults()
+    encoder = video_encoder(codec)
     tmp = Path(tempfile.mkdtemp(prefix="babblegen-video-"))
     path = tmp / "episode.mp4"
     try:
@@ -152,13 +162,13 @@ def image_stats(images: np.ndarray) -> dict[str, np.ndarray]:
     return {k: v if k == "count" else np.squeeze(v / 255.0, axis=0) for k, v in stats.items()}
 
 
-def encode_episode(frames: Frames, fps: int, features: dict) -> EncodedEpisode:
+def encode_episode(frames: Frames, fps: int, features: dict, codec: str = DEFAULT_VIDEO_CODEC) -> EncodedEpisode:
     """Video, columns and statistics of one executed movement (``features``: the schema as LeRobot stores
     it, :func:`with_default_features`)."""
     from lerobot.datasets.compute_stats import compute_episode_stats
 
     columns = frame_columns(frames, fps, features)
-    video, duration = encode_video(frames.images, fps)
+    video, duration = encode_video(frames.images, fps, codec)
     stats = compute_episode_stats(columns, features)
     stats[HEAD] = image_stats(frames.images)
     return EncodedEpisode(columns, video, duration, stats)
@@ -167,16 +177,16 @@ def encode_episode(frames: Frames, fps: int, features: dict) -> EncodedEpisode:
 class EpisodeEncoder:
     """``encode_episode`` as a picklable step for the worker-side preparers (``babblegen.evaluation.Preparers``)."""
 
-    def __init__(self, fps: int, features: dict):
-        self.fps, self.features = fps, features
+    def __init__(self, fps: int, features: dict, codec: str = DEFAULT_VIDEO_CODEC):
+        self.fps, self.features, self.codec = fps, features, codec
 
     def __call__(self, frames: Frames) -> EncodedEpisode:
-        return encode_episode(frames, self.fps, self.features)
+        return encode_episode(frames, self.fps, self.features, self.codec)
 
     def warm_up(self) -> None:
         """Import LeRobot and start the encoder once (seconds), so that no attempt's timing includes it."""
         height, width = self.features[HEAD]["shape"][:2]
-        encode_video(np.zeros((2, height, width, 3), dtype=np.uint8), self.fps)
+        encode_video(np.zeros((2, height, width, 3), dtype=np.uint8), self.fps, self.codec)
 
 
 def _quiet_codecs() -> None:

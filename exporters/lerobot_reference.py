@@ -1,5 +1,5 @@
-"""LeRobot's own per-episode writer (``add_frame`` + ``save_episode``, its default settings), kept as the
-reference.
+"""LeRobot's own per-episode writer (``add_frame`` + ``save_episode``, its default settings but for the video
+codec), kept as the reference.
 
 babblegen writes its datasets with the segment writer in ``exporters/lerobot.py``, which appends episodes
 encoded in the workers. This module writes the same frames the way LeRobot's recording tools do; the tests
@@ -11,7 +11,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from babblegen.exporters.lerobot import import_lerobot
-from babblegen.exporters.lerobot_encoding import HEAD
+from babblegen.exporters.lerobot_encoding import DEFAULT_VIDEO_CODEC, HEAD, video_encoder
 from babblegen.world.rollout import Frames
 
 
@@ -22,10 +22,18 @@ class ReferenceWriter:
         self.root, self.repo_id, self.ds = Path(root), repo_id, dataset
 
     @classmethod
-    def create(cls, root: Path, repo_id: str, fps: int, feats: dict, robot_type: str) -> ReferenceWriter:
+    def create(
+        cls, root: Path, repo_id: str, fps: int, feats: dict, robot_type: str, codec: str = DEFAULT_VIDEO_CODEC
+    ) -> ReferenceWriter:
         lerobot_dataset = import_lerobot()
         ds = lerobot_dataset.create(
-            repo_id=repo_id, fps=fps, features=feats, root=root, robot_type=robot_type, use_videos=True
+            repo_id=repo_id,
+            fps=fps,
+            features=feats,
+            root=root,
+            robot_type=robot_type,
+            use_videos=True,
+            rgb_encoder=video_encoder(codec),
         )
         return cls(root, repo_id, ds)
 

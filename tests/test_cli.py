@@ -16,7 +16,7 @@ import pytest
 from conftest import SMALL_RUN
 
 from babblegen.cli import main
-from babblegen.config import RunConfig
+from babblegen.config import ConfigError, RunConfig, resumed_config
 from babblegen.descriptors import from_hex, make_descriptor
 from babblegen.exporters.lerobot import load_dataset, to_uint8_image
 from babblegen.exporters.sidecar import read_attempts, read_run_info
@@ -162,6 +162,7 @@ def test_impossible_values_are_refused(tmp_path, capsys, flags, message):
         (["--max-attempts", "-3"], "must not be negative"),
         (["--explorer", "genetic"], "invalid choice: 'genetic' (choose from 'noveb', 'random')"),
         (["--task", "kitchen"], "invalid choice: 'kitchen' (choose from 'noveb_tabletop'"),
+        (["--video-codec", "vp9"], "invalid choice: 'vp9' (choose from 'h264', 'libsvtav1')"),
     ],
 )
 def test_bad_flags_exit_2_with_the_valid_choices(tmp_path, capsys, flags, message):
@@ -371,6 +372,7 @@ def test_help_and_config_do_not_load_the_simulator():
         ("noveb = 3\n", "[noveb] must be a table"),
         ("[noveb]\nnot_an_option = 1\n", "unknown keys in [noveb]: not_an_option"),
         ("seed = \n", "is not valid TOML"),
+        ('video_codec = "vp9"\n', "unknown video codec 'vp9'; choose one of: h264, libsvtav1"),
     ],
 )
 def test_a_bad_config_file_is_refused_with_one_line(tmp_path, capsys, toml, message):
@@ -385,3 +387,12 @@ def test_a_bad_config_file_is_refused_with_one_line(tmp_path, capsys, toml, mess
 def test_workers_default_to_one_per_core():
     assert RunConfig().workers == len(os.sched_getaffinity(0))
     assert RunConfig.from_dict({"workers": 1}).workers == 1
+
+
+def test_a_resumed_run_keeps_its_video_codec():
+    stored = RunConfig().to_dict()
+    assert resumed_config(stored).video_codec == "h264"
+    with pytest.raises(ConfigError, match="cannot change 'video_codec'"):
+        resumed_config(stored, {"video_codec": "libsvtav1"})
+    del stored["video_codec"]  # stored before the setting existed, when every run recorded AV1
+    assert resumed_config(stored).video_codec == "libsvtav1"

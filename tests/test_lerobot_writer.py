@@ -12,6 +12,7 @@ import json
 import numpy as np
 import pytest
 
+from babblegen.config import VIDEO_CODECS
 from babblegen.exporters.lerobot import SegmentWriter, features, load_dataset, rollback, snapshot
 from babblegen.exporters.lerobot_encoding import encode_episode
 from babblegen.exporters.lerobot_reference import ReferenceWriter
@@ -48,32 +49,33 @@ def synthetic_frames(length: int, seed: int) -> Frames:
     )
 
 
-@pytest.fixture(scope="module")
-def datasets(tmp_path_factory):
+@pytest.fixture(scope="module", params=VIDEO_CODECS)
+def datasets(tmp_path_factory, request):
     """The same five episodes through LeRobot's writer, and through the segment writer in two segments with a
-    resume between them that rolls back an uncommitted segment."""
+    resume between them that rolls back an uncommitted segment; once per video codec."""
+    codec = request.param
     root = tmp_path_factory.mktemp("writers")
     episodes = [synthetic_frames(n, seed) for seed, n in enumerate(LENGTHS)]
     feats = features(JOINTS, OBJECTS, SIDE, SIDE)
 
-    reference = ReferenceWriter.create(root / "reference", "test/reference", FPS, feats, "pr2_arm")
+    reference = ReferenceWriter.create(root / "reference", "test/reference", FPS, feats, "pr2_arm", codec)
     for frames in episodes:
         reference.add_episode(frames, TASK)
     reference.finalize()
 
     ours = root / "segments"
-    writer = SegmentWriter.create(ours, "test/segments", FPS, feats, "pr2_arm")
+    writer = SegmentWriter.create(ours, "test/segments", FPS, feats, "pr2_arm", codec)
     for frames in episodes[:2]:
-        writer.add(encode_episode(frames, FPS, writer.features), TASK)
+        writer.add(encode_episode(frames, FPS, writer.features, codec), TASK)
     writer.flush()
     committed = snapshot(ours)
     for seed in (7, 8):  # written after the commit point, then lost in a crash
-        writer.add(encode_episode(synthetic_frames(5, seed), FPS, writer.features), TASK)
+        writer.add(encode_episode(synthetic_frames(5, seed), FPS, writer.features, codec), TASK)
     writer.flush()
     rollback(ours, committed)
-    writer = SegmentWriter.reopen(ours, "test/segments")
+    writer = SegmentWriter.reopen(ours, "test/segments", codec)
     for frames in episodes[2:]:
-        writer.add(encode_episode(frames, FPS, writer.features), TASK)
+        writer.add(encode_episode(frames, FPS, writer.features, codec), TASK)
     writer.flush()
     return load_dataset(root / "reference"), load_dataset(ours)
 
@@ -119,3 +121,13 @@ def test_info_and_statistics_match(datasets):
             # computes exactly from pixel-value counts (exporters/lerobot_encoding.image_stats)
             rtol = 1e-4 if key == "observation.images.head" and name in ("mean", "std") else 1e-9
             np.testing.assert_allclose(stats[1][key][name], value, rtol=rtol, atol=1e-12, err_msg=f"{key} {name}")
+
+
+def test_the_recorded_codec_is_the_one_asked_for_and_a_resume_cannot_switch_it(datasets, tmp_path):
+    _, ours = datasets
+    info = json.loads((ours.root / "meta/info.json").read_text())["features"]["observation.images.head"]["info"]
+    codec = {"h264": "h264", "av1": "libsvtav1"}[info["video.codec"]]
+    assert info["video.g"] == 2 and info["video.crf"] == 30  # LeRobot's settings for every codec
+    other = next(c for c in VIDEO_CODECS if c != codec)
+    with pytest.raises(ValueError, match=f"cannot take episodes encoded with {other}"):
+        SegmentWriter.reopen(ours.root, "test/segments", other)
