@@ -134,8 +134,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--video-codec",
         choices=VIDEO_CODECS,
         default=None,
-        help="head-camera video codec, with LeRobot's settings for it; libsvtav1 is LeRobot's own default, h264 "
-        "encodes about 3x faster here [default: h264]",
+        help="head-camera video codec; libsvtav1 is LeRobot's own default, h264 encodes about 3x faster for "
+        "about the same fidelity and size [default: h264]",
     )
     g.add_argument("--no-progress", action="store_true", help="no progress bar")
     g.set_defaults(func=cmd_generate)

@@ -14,9 +14,9 @@ from typing import Any
 from babblegen.explorers.noveb import NovEBConfig
 from babblegen.world.settings import WorldSettings
 
-# The head camera's video codecs, each encoded with LeRobot's settings for it. H.264 is the default: on frames
-# like 128x128 it costs about a third of the CPU time of LeRobot's own default, SVT-AV1, for smaller files
-# (benchmarks/bench_codecs.py), and every LeRobot video backend decodes it.
+# The head camera's video codecs (settings: babblegen.exporters.lerobot_encoding.video_encoder). H.264 is the
+# default: on frames like 128x128 it costs about a third of the CPU time of LeRobot's own default, SVT-AV1, for
+# about the same fidelity and size (benchmarks/bench_codecs.py), and every LeRobot video backend decodes it.
 VIDEO_CODECS = ("h264", "libsvtav1")
 
 

@@ -1,9 +1,10 @@
 """The head camera's video codecs on real episodes, in one run: what encoding costs the workers (CPU and wall
-milliseconds per frame), the bytes per frame it leaves on disk, and what reading frames back costs a training
-loop (``LeRobotDataset[i]`` at random indices, which decodes the video).
+milliseconds per frame), how faithful the decoded frames are (PSNR against the rendered ones), the bytes per
+frame left on disk, and what reading frames back costs a training loop (``LeRobotDataset[i]`` at random
+indices, which decodes the video).
 
-Each codec is encoded with LeRobot's own settings for it (``RGBEncoderConfig(vcodec=...)``), the same episodes
-for every codec, through babblegen's segment writer.
+Each codec is encoded with babblegen's settings for it (``video_encoder``), the same episodes for every codec,
+through babblegen's segment writer.
 
     python benchmarks/bench_codecs.py --episodes 12 --reads 300
 """
@@ -40,6 +41,18 @@ def record_episodes(n: int, seed: int):
     return task, world.kin.joint_names, frames
 
 
+def psnr(video: bytes, images: np.ndarray) -> float:
+    """Peak signal-to-noise ratio (dB) of the decoded video against the frames it encodes."""
+    import io
+
+    import av
+
+    with av.open(io.BytesIO(video)) as container:
+        decoded = np.stack([f.to_ndarray(format="rgb24") for f in container.decode(video=0)])
+    mse = np.mean((decoded.astype(np.float64) - images.astype(np.float64)) ** 2)
+    return float(10 * np.log10(255.0**2 / mse))
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--episodes", type=int, default=12)
@@ -66,6 +79,7 @@ def main() -> None:
         cpu = (time.process_time() - cpu) / (args.repeats * n_frames) * 1e3
         wall = (time.perf_counter() - wall) / (args.repeats * n_frames) * 1e3
         size = sum(len(v) for v in videos) / n_frames
+        fidelity = float(np.mean([psnr(v, f.images) for v, f in zip(videos, episodes, strict=True)]))
 
         writer = SegmentWriter.create(
             tmp / codec, f"bench/{codec}", 10, features(joints, task.object_names, h, w), "pr2_arm", codec
@@ -82,8 +96,8 @@ def main() -> None:
         read = (time.perf_counter() - t) / args.reads * 1e3
         results[codec] = (cpu, wall, size, read)
         print(
-            f"{codec:>10}: encode {cpu:.2f} ms CPU, {wall:.2f} ms wall per frame; {size:.0f} bytes per frame; "
-            f"LeRobotDataset[i] {read:.2f} ms"
+            f"{codec:>10}: encode {cpu:.2f} ms CPU, {wall:.2f} ms wall per frame; PSNR {fidelity:.1f} dB; "
+            f"{size:.0f} bytes per frame; LeRobotDataset[i] {read:.2f} ms"
         )
     base = results["libsvtav1"]
     for codec, r in results.items():

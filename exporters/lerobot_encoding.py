@@ -86,19 +86,26 @@ def frame_columns(frames: Frames, fps: int, features: dict) -> dict[str, np.ndar
     return columns
 
 
+# The constant-quality level per codec: LeRobot's default for SVT-AV1; for H.264, x264's own default, at which
+# the head-camera video is about as faithful as with LeRobot's AV1 default (PSNR 36.9 against 36.6 dB on the
+# default scene, for 1.1x the bytes; benchmarks/bench_codecs.py).
+CRF = {"h264": 23, "libsvtav1": 30}
+
+
 def video_encoder(codec: str):
-    """LeRobot's encoder settings for ``codec`` (``RGBEncoderConfig``: its GOP size, CRF and preset)."""
+    """The encoder settings for ``codec`` (LeRobot's ``RGBEncoderConfig``: its GOP size and preset, the CRF of
+    :data:`CRF`)."""
     from lerobot.configs.video import RGBEncoderConfig
 
     if codec not in VIDEO_CODECS:
         raise ValueError(f"unknown video codec {codec!r}; choose one of: {', '.join(VIDEO_CODECS)}")
-    return RGBEncoderConfig(vcodec=codec)
+    return RGBEncoderConfig(vcodec=codec, crf=CRF[codec])
 
 
 def encode_video(images: np.ndarray, fps: int, codec: str = DEFAULT_VIDEO_CODEC) -> tuple[bytes, float]:
-    """Encode (T, H, W, 3) uint8 frames as LeRobot's ``encode_video_frames`` does in its recording path (its
-    settings for ``codec``, the same PyAV calls), from memory instead of PNG files. Returns the mp4 bytes and
-    their duration in seconds."""
+    """Encode (T, H, W, 3) uint8 frames as LeRobot's ``encode_video_frames`` does in its recording path (the
+    same PyAV calls, :func:`video_encoder`'s settings), from memory instead of PNG files. Returns the mp4 bytes
+    and their duration in seconds."""
     _quiet_codecs()
     import av
     from lerobot.datasets.video_utils import get_video_duration_in_s
