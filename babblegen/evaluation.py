@@ -93,6 +93,12 @@ class Evaluator(ABC):
     @abstractmethod
     def evaluate(self, commands: list[Command], attempts: list[int]) -> list[Rollout]: ...
 
+    def attach_prepared(self, rollout: Rollout, attempt: int, wait: bool) -> bool:
+        """Whether ``rollout`` (of ``attempt``, collected from this evaluator) holds its preparation; an
+        evaluator that prepares rollouts later than it returns them (see `ProcessEvaluator`) attaches it here,
+        waiting for it with ``wait``. Rollouts prepared before they are returned are always ready."""
+        return True
+
     def close(self) -> None:  # noqa: B027  (optional hook)
         pass
 

@@ -23,7 +23,7 @@ import time
 import traceback
 from abc import abstractmethod
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from multiprocessing.connection import wait
 
 from babblegen.config import ConfigError, RunConfig
@@ -34,10 +34,20 @@ from babblegen.world.settings import WorldSettings
 
 log = logging.getLogger(__name__)
 
+# How long a worker with episodes to prepare waits for its next rollout when the batch has more to hand out,
+# before it prepares one (the coordinator answers a returned rollout with the next request in milliseconds).
+NEXT_REQUEST_GRACE_S = 0.05
+
 
 def _worker_main(conn, task_name: str, settings: WorldSettings, run_seed: int, prepare: Prepare | None) -> None:
-    """Worker loop: build a World once, then answer (attempt, command) requests until told to stop. A Python
-    error in a rollout is sent back (the coordinator replaces this worker and retries, as for a crash)."""
+    """Worker loop: build a World once, then answer (attempt, command, more) requests until told to stop. A
+    Python error in a rollout is sent back (the coordinator replaces this worker and retries, as for a crash).
+
+    Each rollout goes back as soon as it is simulated; its preparation (``prepare``: encoding the episode) waits
+    until no rollout is asked for, and goes back as a ``"prepared"`` message. The movements, which the next
+    generation waits for, come first; the encoding fills the time a worker would otherwise wait for the others
+    at the end of a generation. ``more`` says whether the batch has rollouts left to hand out, so whether the
+    next request is about to arrive."""
     os.environ.setdefault("LP_NUM_THREADS", "1")  # one rendering thread per worker process
     import torch
 
@@ -49,15 +59,26 @@ def _worker_main(conn, task_name: str, settings: WorldSettings, run_seed: int, p
     world = World(get_task(task_name), settings, seed=run_seed)
     warm_up(world, prepare)
     conn.send(("ready", None))
+    unprepared: deque[tuple[int, Rollout]] = deque()
+    more = False
     while True:
+        if unprepared and not conn.poll(NEXT_REQUEST_GRACE_S if more else 0.0):
+            attempt, rollout = unprepared.popleft()
+            prepare(rollout)
+            conn.send(("prepared", (attempt, rollout.prepared, rollout.timings.get("prepare", 0.0))))
+            continue
         msg = conn.recv()
         if msg is None:
             break
-        attempt, command = msg
+        attempt, command, more = msg
         try:
-            conn.send(("ok", seeded_rollout(world, command, run_seed, attempt, prepare)))
+            rollout = seeded_rollout(world, command, run_seed, attempt)
         except Exception:
             conn.send(("error", traceback.format_exc(limit=-3)))
+            continue
+        conn.send(("ok", rollout))
+        if prepare is not None and rollout.feasible:
+            unprepared.append((attempt, rollout))
     world.close()
 
 
@@ -135,8 +156,8 @@ class PoolEvaluator(_BatchThread):
         self.failures = 0
 
     @abstractmethod
-    def _send(self, slot: int, attempt: int, command: Command) -> None:
-        """Start one rollout on a free slot."""
+    def _send(self, slot: int, attempt: int, command: Command, more: bool) -> None:
+        """Start one rollout on a free slot (``more``: the batch has rollouts left to hand out)."""
 
     @abstractmethod
     def _wait(self, busy: list[int], timeout: float) -> list[tuple[int, Rollout | Failure]]:
@@ -181,7 +202,7 @@ class PoolEvaluator(_BatchThread):
                     i = queue.popleft()
                     jobs[slot] = (i, time.monotonic())
                     self._started(slot, (i, commands[i]))
-                    self._send(slot, attempts[i], commands[i])
+                    self._send(slot, attempts[i], commands[i], bool(queue))
             for slot, outcome in self._wait(list(jobs), timeout=1.0):
                 i, _ = jobs.pop(slot)
                 self._started(slot, None)
@@ -206,10 +227,14 @@ class _Worker:
     process: mp.Process
     conn: object
     job: tuple[int, Command] | None = None
+    attempt: int | None = None  # of the rollout last handed to it
+    owed: set[int] = field(default_factory=set)  # attempts it returned and has yet to send the preparation of
 
 
 class ProcessEvaluator(PoolEvaluator):
-    """``n`` local worker processes."""
+    """``n`` local worker processes. Each returns a rollout as soon as it is simulated and prepares the episode
+    when it has no rollout to run (`_worker_main`); `attach_prepared` hands each preparation to its rollout, and
+    prepares here those whose worker died before sending them."""
 
     kind = "worker process"
 
@@ -225,6 +250,9 @@ class ProcessEvaluator(PoolEvaluator):
     ):
         super().__init__(n, timeout, retries)
         self.task, self.settings, self.run_seed, self.prepare = task, settings, run_seed, prepare
+        self._prepared: dict[int, tuple[dict, float]] = {}  # attempt -> (preparation, seconds it took)
+        self._lost: set[int] = set()  # attempts whose preparation died with a worker
+        self._arrived = threading.Condition()
         self.ctx = mp.get_context("spawn")
         self.workers = [self._spawn() for _ in range(n)]
         for w in self.workers:
@@ -248,32 +276,99 @@ class ProcessEvaluator(PoolEvaluator):
     def _started(self, slot: int, job: tuple[int, Command] | None) -> None:
         self.workers[slot].job = job
 
-    def _send(self, slot: int, attempt: int, command: Command) -> None:
-        self.workers[slot].conn.send((attempt, command))
+    def _send(self, slot: int, attempt: int, command: Command, more: bool) -> None:
+        w = self.workers[slot]
+        w.attempt = attempt
+        with contextlib.suppress(BrokenPipeError, OSError):  # a dead worker is noticed by `_wait`
+            w.conn.send((attempt, command, more))
+
+    def _receive(self, w: _Worker) -> Rollout | Failure | None:
+        """Read what a worker has sent: preparations are kept for `attach_prepared`; the outcome of its rollout,
+        if among them, is returned."""
+        outcome: Rollout | Failure | None = None
+        try:
+            while w.conn.poll():
+                status, value = w.conn.recv()
+                with self._arrived:
+                    if status == "prepared":
+                        attempt, prepared, seconds = value
+                        w.owed.discard(attempt)
+                        self._prepared[attempt] = (prepared, seconds)
+                        self._arrived.notify_all()
+                    elif status == "ok":
+                        if self.prepare is not None and value.feasible:
+                            w.owed.add(w.attempt)
+                        outcome = value
+                    else:
+                        outcome = Failure(f"raised an error:\n{value}")
+        except (EOFError, OSError):
+            return outcome or Failure("died")
+        return outcome
 
     def _wait(self, busy: list[int], timeout: float) -> list[tuple[int, Rollout | Failure]]:
-        ws = [self.workers[s] for s in busy]
-        ready = wait([w.conn for w in ws] + [w.process.sentinel for w in ws], timeout=timeout)
+        sentinels = [self.workers[s].process.sentinel for s in busy]
+        ready = wait([w.conn for w in self.workers] + sentinels, timeout=timeout)
         out: list[tuple[int, Rollout | Failure]] = []
-        for slot, w in zip(busy, ws, strict=True):
-            if w.conn in ready:
-                try:
-                    status, value = w.conn.recv()
-                except (EOFError, OSError):
-                    out.append((slot, Failure("died")))
-                    continue
-                out.append((slot, value if status == "ok" else Failure(f"raised an error:\n{value}")))
+        for slot, w in enumerate(self.workers):
+            outcome = self._receive(w) if w.conn in ready else None
+            if slot not in busy:
+                if isinstance(outcome, Failure):  # died between rollouts, preparing episodes
+                    self._replace_idle(slot)
+            elif outcome is not None:
+                out.append((slot, outcome))
             elif w.process.sentinel in ready or not w.process.is_alive():
                 out.append((slot, Failure("died")))
         return out
+
+    def _replace_idle(self, slot: int) -> None:
+        self.failures += 1
+        log.warning("rollout %s died between rollouts; replacing it", self.kind)
+        self._replace(slot)
 
     def _replace(self, slot: int) -> None:
         w = self.workers[slot]
         w.process.kill()
         w.process.join(5)
+        with self._arrived:  # what it owed is prepared by `attach_prepared` instead
+            self._lost |= w.owed
+            w.owed.clear()
+            self._arrived.notify_all()
         fresh = self._spawn()
         self._await_ready(fresh)
         self.workers[slot] = fresh
+
+    def attach_prepared(self, rollout: Rollout, attempt: int, wait: bool) -> bool:
+        if self.prepare is None or not rollout.feasible:
+            return True
+        while True:
+            with self._arrived:
+                if attempt in self._prepared:
+                    prepared, seconds = self._prepared.pop(attempt)
+                    rollout.prepared.update(prepared)
+                    rollout.timings["prepare"] = seconds
+                    return True
+                lost = attempt in self._lost
+                self._lost.discard(attempt)
+                if not lost and self._thread is not None and self._thread.is_alive():
+                    if not wait:
+                        return False
+                    self._arrived.wait(0.05)  # the dispatch thread reads the workers' messages
+                    continue
+            if lost:  # its worker died before sending it
+                self.prepare(rollout)
+                return True
+            self._read_between_batches(0.05 if wait else 0.0)
+            if not wait and attempt not in self._prepared and attempt not in self._lost:
+                return False
+
+    def _read_between_batches(self, timeout: float) -> None:
+        """Read the workers' messages while no batch runs (only preparations can arrive); replace a worker that
+        died owing some."""
+        ready = wait([w.conn for w in self.workers], timeout=timeout)
+        for slot, w in enumerate(self.workers):
+            died = w.conn in ready and isinstance(self._receive(w), Failure)
+            if died or (w.owed and not w.process.is_alive()):
+                self._replace_idle(slot)
 
     def close(self) -> None:
         self._stop_dispatch()
@@ -347,7 +442,7 @@ class RayEvaluator(PoolEvaluator):
         ray.get([a.ping.remote() for a in self.actors])
         self._refs: dict[int, object] = {}
 
-    def _send(self, slot: int, attempt: int, command: Command) -> None:
+    def _send(self, slot: int, attempt: int, command: Command, more: bool) -> None:
         self._refs[slot] = self.actors[slot].rollout.remote(attempt, command)
 
     def _wait(self, busy: list[int], timeout: float) -> list[tuple[int, Rollout | Failure]]:

@@ -17,6 +17,7 @@ import platform
 import shutil
 import sys
 import time
+from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -305,9 +306,12 @@ class Run:
 
     def _loop(self, bar) -> None:
         """ask -> rollout -> describe -> tell -> write, one generation at a time. The next generation is
-        submitted before this one is written, so workers simulate while the writer writes."""
+        submitted before this one is written, so workers simulate while the writer writes. An attempt is written
+        once its episode is prepared (workers prepare episodes when they have no movement to simulate), in
+        attempt order; at a commit point, every attempt told so far is."""
         if self._finished() and not self.explorer.batch_open:
             return
+        unwritten: deque[tuple] = deque()  # told attempts, in order, waiting for their episode's preparation
         candidates = self._ask_and_submit()
         while candidates is not None:
             t = time.perf_counter()
@@ -318,15 +322,25 @@ class Run:
             clones = self.explorer.last_clones
             following = None if self._finished() else self._ask_and_submit()
             for record in zip(candidates, rollouts, codes, evaluations, describe_s, strict=True):
-                self._write_attempt(*record, waited, bar)
+                unwritten.append((*record, waited))
+            commit = following is None or (self.counters["generations"] + 1) % self.config.checkpoint_every == 0
+            self._write_prepared(unwritten, bar, wait=commit)
             with self._interrupts.protected():
                 self.store.write_clones([clone_row(c) for c in clones])
                 self.counters["clones"] += len(clones)
                 self.counters["generations"] += 1
-                if self.counters["generations"] % self.config.checkpoint_every == 0:
+                if commit and following is not None:
                     self.store.commit(self.explorer.state_dict(), self.counters)
             self._show(bar)
             candidates = following
+
+    def _write_prepared(self, unwritten: deque, bar, wait: bool) -> None:
+        """Write the attempts at the front of ``unwritten`` whose episodes are prepared (``wait``: all of them)."""
+        while unwritten:
+            cand, rollout = unwritten[0][:2]
+            if not self.evaluator.attach_prepared(rollout, cand.index, wait):
+                return
+            self._write_attempt(*unwritten.popleft(), bar)
 
     def _describe(self, rollouts) -> tuple[list, list[float]]:
         codes, seconds = [], []

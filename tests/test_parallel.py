@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from babblegen.cli import main
-from babblegen.evaluation import LocalEvaluator
+from babblegen.evaluation import LocalEvaluator, Preparers
 from babblegen.exporters.lerobot import load_dataset
 from babblegen.exporters.sidecar import read_attempts, read_run_info
 from babblegen.parallel import ProcessEvaluator, RayEvaluator
@@ -116,6 +116,34 @@ def test_killed_worker_is_replaced_and_its_rollout_retried():
         if e.feasible:
             np.testing.assert_array_equal(g.frames.state, e.frames.state)
             np.testing.assert_array_equal(g.final_poses, e.final_poses)
+
+
+class SlowPreparation:
+    """An episode preparation slow enough for a test to kill the worker in the middle of it; its result is the
+    number of frames."""
+
+    def __call__(self, frames) -> int:
+        time.sleep(2)
+        return len(frames)
+
+
+def test_episodes_are_prepared_after_the_batch_and_here_if_their_worker_dies():
+    ev = ProcessEvaluator(get_task("noveb_tabletop"), SETTINGS, 9, n=2, prepare=Preparers({"n": SlowPreparation()}))
+    try:
+        commands, attempts = _commands(6), list(range(6))
+        t = time.perf_counter()
+        rollouts = ev.evaluate(commands, attempts)
+        executed = [(r, a) for r, a in zip(rollouts, attempts, strict=True) if r.feasible]
+        assert len(executed) >= 3
+        assert not any(ev.attach_prepared(r, a, wait=False) for r, a in executed), "preparations come later"
+        os.kill(ev.workers[0].process.pid, signal.SIGKILL)  # it owes preparations
+        for r, a in executed:
+            assert ev.attach_prepared(r, a, wait=True)
+            assert r.prepared == {"n": len(r.frames)} and r.timings["prepare"] >= 2
+        assert ev.failures == 1 and all(w.process.is_alive() for w in ev.workers)
+        assert time.perf_counter() - t < 2 * len(executed) + 60
+    finally:
+        ev.close()
 
 
 def test_ray_actor_killed_mid_batch_is_replaced():
