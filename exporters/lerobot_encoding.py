@@ -90,6 +90,9 @@ def frame_columns(frames: Frames, fps: int, features: dict) -> dict[str, np.ndar
 # the head-camera video is about as faithful as with LeRobot's AV1 default (PSNR 36.9 against 36.6 dB on the
 # default scene, for 1.1x the bytes; benchmarks/bench_codecs.py).
 CRF = {"h264": 23, "libsvtav1": 30}
+# One encoder thread: episodes are encoded in the workers, one core each. (x264's own threads would compete with
+# the other workers' simulations, and for frames this small they cost more CPU in all and give larger files.)
+ENCODER_THREADS = 1
 
 
 def video_encoder(codec: str):
@@ -116,7 +119,8 @@ def encode_video(images: np.ndarray, fps: int, codec: str = DEFAULT_VIDEO_CODEC)
     path = tmp / "episode.mp4"
     try:
         with av.open(str(path), "w") as output:
-            stream = output.add_stream(encoder.vcodec, fps, options=encoder.get_codec_options(None, as_strings=True))
+            options = encoder.get_codec_options(ENCODER_THREADS, as_strings=True)
+            stream = output.add_stream(encoder.vcodec, fps, options=options)
             stream.pix_fmt = encoder.pix_fmt
             stream.height, stream.width = images.shape[1:3]
             for image in images:

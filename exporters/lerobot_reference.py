@@ -1,5 +1,5 @@
 """LeRobot's own per-episode writer (``add_frame`` + ``save_episode``, its default settings but for the video
-codec), kept as the reference.
+encoder's), kept as the reference.
 
 babblegen writes its datasets with the segment writer in ``exporters/lerobot.py``, which appends episodes
 encoded in the workers. This module writes the same frames the way LeRobot's recording tools do; the tests
@@ -11,7 +11,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from babblegen.exporters.lerobot import import_lerobot
-from babblegen.exporters.lerobot_encoding import DEFAULT_VIDEO_CODEC, HEAD, video_encoder
+from babblegen.exporters.lerobot_encoding import DEFAULT_VIDEO_CODEC, ENCODER_THREADS, HEAD, video_encoder
 from babblegen.world.rollout import Frames
 
 
@@ -34,6 +34,7 @@ class ReferenceWriter:
             robot_type=robot_type,
             use_videos=True,
             rgb_encoder=video_encoder(codec),
+            encoder_threads=ENCODER_THREADS,
         )
         return cls(root, repo_id, ds)
 
