@@ -40,14 +40,17 @@ NEXT_REQUEST_GRACE_S = 0.05
 
 
 def _worker_main(conn, task_name: str, settings: WorldSettings, run_seed: int, prepare: Prepare | None) -> None:
-    """Worker loop: build a World once, then answer (attempt, command, more) requests until told to stop. A
-    Python error in a rollout is sent back (the coordinator replaces this worker and retries, as for a crash).
+    """Worker loop: build a World once, then answer requests until told to stop (``None``):
 
-    Each rollout goes back as soon as it is simulated; its preparation (``prepare``: encoding the episode) waits
-    until no rollout is asked for, and goes back as a ``"prepared"`` message. The movements, which the next
-    generation waits for, come first; the encoding fills the time a worker would otherwise wait for the others
-    at the end of a generation. ``more`` says whether the batch has rollouts left to hand out, so whether the
-    next request is about to arrive."""
+    - ``("run", attempt, command, more)``: simulate; the rollout goes back at once (a Python error is sent back
+      instead: the coordinator replaces this worker and retries, as for a crash);
+    - ``("prepare", attempt, rollout)``: prepare a rollout another worker simulated;
+    - ``("forget", attempt)``: another worker prepares this one.
+
+    A rollout's preparation (``prepare``: encoding the episode) waits until no request is pending, and goes back
+    as a ``"prepared"`` message. The movements, which the next generation waits for, come first; the encoding
+    fills the time a worker would otherwise wait for the others at the end of a generation. ``more`` says
+    whether the batch has rollouts left to hand out, so whether the next request is about to arrive."""
     os.environ.setdefault("LP_NUM_THREADS", "1")  # one rendering thread per worker process
     import torch
 
@@ -56,21 +59,31 @@ def _worker_main(conn, task_name: str, settings: WorldSettings, run_seed: int, p
     from babblegen.tasks import get_task
     from babblegen.world.world import World
 
+    def prepare_and_send(attempt: int, rollout: Rollout) -> None:
+        prepare(rollout)
+        conn.send(("prepared", (attempt, rollout.prepared, rollout.timings.get("prepare", 0.0))))
+
     world = World(get_task(task_name), settings, seed=run_seed)
     warm_up(world, prepare)
     conn.send(("ready", None))
-    unprepared: deque[tuple[int, Rollout]] = deque()
+    unprepared: dict[int, Rollout] = {}  # simulated here, oldest first
     more = False
     while True:
         if unprepared and not conn.poll(NEXT_REQUEST_GRACE_S if more else 0.0):
-            attempt, rollout = unprepared.popleft()
-            prepare(rollout)
-            conn.send(("prepared", (attempt, rollout.prepared, rollout.timings.get("prepare", 0.0))))
+            attempt = next(iter(unprepared))
+            prepare_and_send(attempt, unprepared.pop(attempt))
             continue
         msg = conn.recv()
         if msg is None:
             break
-        attempt, command, more = msg
+        kind, attempt, *rest = msg
+        if kind == "forget":
+            unprepared.pop(attempt, None)
+            continue
+        if kind == "prepare":
+            prepare_and_send(attempt, rest[0])
+            continue
+        command, more = rest
         try:
             rollout = seeded_rollout(world, command, run_seed, attempt)
         except Exception:
@@ -78,7 +91,7 @@ def _worker_main(conn, task_name: str, settings: WorldSettings, run_seed: int, p
             continue
         conn.send(("ok", rollout))
         if prepare is not None and rollout.feasible:
-            unprepared.append((attempt, rollout))
+            unprepared[attempt] = rollout
     world.close()
 
 
@@ -170,6 +183,9 @@ class PoolEvaluator(_BatchThread):
     def _started(self, slot: int, job: tuple[int, Command] | None) -> None:  # noqa: B027  (optional hook)
         """Called when a slot takes (``job``) or leaves (``None``) a rollout."""
 
+    def _share_work(self, busy: set[int]) -> None:  # noqa: B027  (optional hook)
+        """Called while the batch has no rollout left to hand out and only the ``busy`` slots run one."""
+
     def _run_batch(self, commands: list[Command], attempts: list[int]) -> list[Rollout]:
         results: dict[int, Rollout] = {}
         retries: dict[int, int] = {}
@@ -203,6 +219,8 @@ class PoolEvaluator(_BatchThread):
                     jobs[slot] = (i, time.monotonic())
                     self._started(slot, (i, commands[i]))
                     self._send(slot, attempts[i], commands[i], bool(queue))
+            if not queue:
+                self._share_work(set(jobs))
             for slot, outcome in self._wait(list(jobs), timeout=1.0):
                 i, _ = jobs.pop(slot)
                 self._started(slot, None)
@@ -228,13 +246,14 @@ class _Worker:
     conn: object
     job: tuple[int, Command] | None = None
     attempt: int | None = None  # of the rollout last handed to it
-    owed: set[int] = field(default_factory=set)  # attempts it returned and has yet to send the preparation of
+    owed: dict[int, None] = field(default_factory=dict)  # attempts whose preparation it is to send, in its order
 
 
 class ProcessEvaluator(PoolEvaluator):
     """``n`` local worker processes. Each returns a rollout as soon as it is simulated and prepares the episode
-    when it has no rollout to run (`_worker_main`); `attach_prepared` hands each preparation to its rollout, and
-    prepares here those whose worker died before sending them."""
+    when it has no rollout to run (`_worker_main`); a worker left with nothing to do at the end of a batch takes
+    over preparations from a busy one (`_share_work`). `attach_prepared` hands each preparation to its rollout,
+    and prepares here those whose worker died before sending them."""
 
     kind = "worker process"
 
@@ -251,6 +270,7 @@ class ProcessEvaluator(PoolEvaluator):
         super().__init__(n, timeout, retries)
         self.task, self.settings, self.run_seed, self.prepare = task, settings, run_seed, prepare
         self._prepared: dict[int, tuple[dict, float]] = {}  # attempt -> (preparation, seconds it took)
+        self._unprepared: dict[int, Rollout] = {}  # returned rollouts whose preparation has not arrived
         self._lost: set[int] = set()  # attempts whose preparation died with a worker
         self._arrived = threading.Condition()
         self.ctx = mp.get_context("spawn")
@@ -279,8 +299,12 @@ class ProcessEvaluator(PoolEvaluator):
     def _send(self, slot: int, attempt: int, command: Command, more: bool) -> None:
         w = self.workers[slot]
         w.attempt = attempt
+        self._tell(w, ("run", attempt, command, more))
+
+    @staticmethod
+    def _tell(w: _Worker, message: tuple) -> None:
         with contextlib.suppress(BrokenPipeError, OSError):  # a dead worker is noticed by `_wait`
-            w.conn.send((attempt, command, more))
+            w.conn.send(message)
 
     def _receive(self, w: _Worker) -> Rollout | Failure | None:
         """Read what a worker has sent: preparations are kept for `attach_prepared`; the outcome of its rollout,
@@ -292,12 +316,14 @@ class ProcessEvaluator(PoolEvaluator):
                 with self._arrived:
                     if status == "prepared":
                         attempt, prepared, seconds = value
-                        w.owed.discard(attempt)
-                        self._prepared[attempt] = (prepared, seconds)
+                        w.owed.pop(attempt, None)
+                        if self._unprepared.pop(attempt, None) is not None:  # else already here (taken over)
+                            self._prepared[attempt] = (prepared, seconds)
                         self._arrived.notify_all()
                     elif status == "ok":
                         if self.prepare is not None and value.feasible:
-                            w.owed.add(w.attempt)
+                            w.owed[w.attempt] = None
+                            self._unprepared[w.attempt] = value
                         outcome = value
                     else:
                         outcome = Failure(f"raised an error:\n{value}")
@@ -330,7 +356,7 @@ class ProcessEvaluator(PoolEvaluator):
         w.process.kill()
         w.process.join(5)
         with self._arrived:  # what it owed is prepared by `attach_prepared` instead
-            self._lost |= w.owed
+            self._lost.update(w.owed)
             w.owed.clear()
             self._arrived.notify_all()
         fresh = self._spawn()
@@ -344,6 +370,7 @@ class ProcessEvaluator(PoolEvaluator):
             with self._arrived:
                 if attempt in self._prepared:
                     prepared, seconds = self._prepared.pop(attempt)
+                    self._lost.discard(attempt)
                     rollout.prepared.update(prepared)
                     rollout.timings["prepare"] = seconds
                     return True
@@ -355,11 +382,33 @@ class ProcessEvaluator(PoolEvaluator):
                     self._arrived.wait(0.05)  # the dispatch thread reads the workers' messages
                     continue
             if lost:  # its worker died before sending it
+                self._unprepared.pop(attempt, None)
                 self.prepare(rollout)
                 return True
             self._read_between_batches(0.05 if wait else 0.0)
             if not wait and attempt not in self._prepared and attempt not in self._lost:
                 return False
+
+    def _share_work(self, busy: set[int]) -> None:
+        """Hand a worker with nothing to do the preparation another worker would do last: one that is running a
+        rollout, or preparing more than one episode. The owner is told to forget it."""
+        for slot, thief in enumerate(self.workers):
+            if slot in busy or thief.owed:
+                continue
+            shareable = {
+                s: list(w.owed) if s in busy else list(w.owed)[1:]  # an idle one is preparing its first
+                for s, w in enumerate(self.workers)
+                if s != slot
+            }
+            owner = max(shareable, key=lambda s: len(shareable[s]), default=None)
+            if owner is None or not shareable[owner]:
+                return
+            attempt = shareable[owner][-1]
+            with self._arrived:
+                del self.workers[owner].owed[attempt]
+                thief.owed[attempt] = None
+            self._tell(self.workers[owner], ("forget", attempt))
+            self._tell(thief, ("prepare", attempt, self._unprepared[attempt]))
 
     def _read_between_batches(self, timeout: float) -> None:
         """Read the workers' messages while no batch runs (only preparations can arrive); replace a worker that
