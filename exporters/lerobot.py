@@ -32,6 +32,7 @@ from babblegen.exporters.lerobot_encoding import (
     features,
     video_encoder,
 )
+from babblegen.exporters.lerobot_stats import numeric_stats
 from babblegen.store import AttemptRecord, Sink, atomic_write
 
 __all__ = ["HEAD", "features"]  # the schema, re-exported for the sinks' users
@@ -145,13 +146,12 @@ class SegmentWriter:
     ) -> list[dict]:
         """The segment's rows of LeRobot's episode table (same columns, same order); returns each episode's
         complete statistics."""
-        from lerobot.datasets.compute_stats import compute_episode_stats
         from lerobot.datasets.utils import DEFAULT_EPISODES_PATH, flatten_dict
 
         (data_chunk, data_file), (video_chunk, video_file) = self.next_file["data"], self.next_file["video"]
         rows, all_stats = [], []
         for episode, task, pos, video_start in zip(episodes, tasks, positions, video_starts, strict=True):
-            stats = {**episode.stats, **compute_episode_stats(pos, self.meta.features)}
+            stats = {**episode.stats, **numeric_stats(pos, self.meta.features)}
             all_stats.append(stats)
             row = {
                 "episode_index": int(pos["episode_index"][0]),

@@ -4,7 +4,7 @@ The expensive part of writing a LeRobot episode is per-episode work that does no
 lands in the dataset: encoding its video and computing its statistics. `encode_episode` does that as LeRobot's
 default recording path does (``encode_video_frames`` with its default RGB settings, ``compute_episode_stats``),
 in the worker that ran the rollout, so one coordinator can append the episodes of many workers (see
-``exporters/lerobot.py``). The image statistics are computed from pixel-value counts (:func:`image_stats`).
+``exporters/lerobot.py``). The statistics are LeRobot's, computed for less (``exporters/lerobot_stats.py``).
 What depends on the position (frame and episode indexes) is left to the coordinator.
 """
 
@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from babblegen.config import VIDEO_CODECS, RunConfig
+from babblegen.exporters.lerobot_stats import image_stats, numeric_stats
 from babblegen.world.rollout import Frames
 
 HEAD = "observation.images.head"
@@ -135,52 +136,12 @@ def encode_video(images: np.ndarray, fps: int, codec: str = DEFAULT_VIDEO_CODEC)
         shutil.rmtree(tmp, ignore_errors=True)
 
 
-def image_stats(images: np.ndarray) -> dict[str, np.ndarray]:
-    """The episode statistics LeRobot's ``compute_episode_stats`` records for a video feature (its sampled
-    frames, per channel, scaled to [0, 1]), computed from per-channel counts of the 256 pixel values.
-
-    LeRobot feeds every sampled pixel to a 5,000-bin running histogram (2-3 ms per 128x128 frame); the same
-    histogram, minimum, maximum and quantiles follow exactly from the counts, at a fraction of the cost. The mean
-    and standard deviation are computed in float64 (LeRobot accumulates them in float32: they agree to about
-    1e-6)."""
-    from lerobot.datasets.compute_stats import (
-        RunningQuantileStats,
-        _reshape_stats_by_axis,
-        auto_downsample_height_width,
-        sample_indices,
-    )
-
-    chw = np.stack([auto_downsample_height_width(images[i].transpose(2, 0, 1)) for i in sample_indices(len(images))])
-    values = np.arange(256, dtype=np.float32)
-    counts = np.stack([np.bincount(chw[:, c].ravel(), minlength=256) for c in range(chw.shape[1])])
-    total = int(counts[0].sum())
-    running = RunningQuantileStats()
-    running._count = total
-    running._min = np.array([values[row > 0][0] for row in counts], dtype=np.float32)
-    running._max = np.array([values[row > 0][-1] for row in counts], dtype=np.float32)
-    running._mean = (counts @ values.astype(np.float64) / total).astype(np.float32)
-    running._mean_of_squares = (counts @ values.astype(np.float64) ** 2 / total).astype(np.float32)
-    running._bin_edges = [  # as RunningQuantileStats.update sets them on its first batch
-        np.linspace(running._min[c] - 1e-10, running._max[c] + 1e-10, running._num_quantile_bins + 1)
-        for c in range(len(counts))
-    ]
-    running._histograms = [
-        np.histogram(values, bins=edges, weights=row)[0] for edges, row in zip(running._bin_edges, counts, strict=True)
-    ]
-    stats = running.get_statistics()
-    stats["count"] = np.array([len(chw)])
-    stats = _reshape_stats_by_axis(stats, (0, 2, 3), True, chw.shape)
-    return {k: v if k == "count" else np.squeeze(v / 255.0, axis=0) for k, v in stats.items()}
-
-
 def encode_episode(frames: Frames, fps: int, features: dict, codec: str = DEFAULT_VIDEO_CODEC) -> EncodedEpisode:
     """Video, columns and statistics of one executed movement (``features``: the schema as LeRobot stores
     it, :func:`with_default_features`)."""
-    from lerobot.datasets.compute_stats import compute_episode_stats
-
     columns = frame_columns(frames, fps, features)
     video, duration = encode_video(frames.images, fps, codec)
-    stats = compute_episode_stats(columns, features)
+    stats = numeric_stats(columns, features)
     stats[HEAD] = image_stats(frames.images)
     return EncodedEpisode(columns, video, duration, stats)
 
