@@ -18,6 +18,7 @@ import contextlib
 import logging
 import multiprocessing as mp
 import os
+import signal
 import threading
 import time
 import traceback
@@ -51,6 +52,8 @@ def _worker_main(conn, task_name: str, settings: WorldSettings, run_seed: int, p
     as a ``"prepared"`` message. The movements, which the next generation waits for, come first; the encoding
     fills the time a worker would otherwise wait for the others at the end of a generation. ``more`` says
     whether the batch has rollouts left to hand out, so whether the next request is about to arrive."""
+    # Ctrl-C in a terminal reaches the whole process group: the coordinator stops the run and then the workers
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     os.environ.setdefault("LP_NUM_THREADS", "1")  # one rendering thread per worker process
     import torch
 

@@ -255,6 +255,23 @@ def test_sigterm_leaves_a_dataset_that_loads(tmp_path):
 
 
 @pytest.mark.sim
+def test_ctrl_c_in_a_terminal_stops_a_run_with_workers_quietly(tmp_path):
+    """Ctrl-C reaches the whole process group: the workers leave the stopping to the main process."""
+    out = tmp_path / "ctrl-c"
+    cmd = [sys.executable, "-m", "babblegen.cli", "generate", "--out", str(out), *SMALL, "--max-attempts", "400"]
+    cmd[cmd.index("--workers") + 1] = "2"
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, start_new_session=True)
+    _wait_for_rows(out, 14, proc)
+    os.killpg(proc.pid, signal.SIGINT)
+    assert proc.wait(timeout=120) == 130
+    printed = proc.stdout.read().decode()
+    assert "Traceback" not in printed and "died" not in printed and "leaked" not in printed, printed
+    assert "resume with: babblegen generate --out" in printed
+    ds = load_dataset(out, read_run_info(out)["repo_id"])
+    assert ds.meta.total_episodes == sum(r["feasible"] for r in read_attempts(out)) > 0
+
+
+@pytest.mark.sim
 def test_a_second_run_on_a_dataset_in_use_is_refused(tmp_path, capsys):
     out = tmp_path / "busy"
     proc = _spawn(out, "--seed", "3", "--max-attempts", "400")
