@@ -45,7 +45,7 @@ class Preparers:
 def warm_up(world: World, prepare: Prepare | None) -> None:
     """Pay the one-time costs before the first attempt (the renderer's shaders, the preparers' imports), so
     that attempts' timings measure attempts; then leave everything alive so far out of garbage collection
-    (`World.freeze_garbage_collection`)."""
+    (`World.warm_up`)."""
     if hasattr(prepare, "warm_up"):
         prepare.warm_up()
     world.warm_up()
