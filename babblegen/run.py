@@ -55,11 +55,15 @@ class RunSummary:
     seconds: float
     interrupted: bool = False
     clones: int = 0
+    resumed_at: int = 0  # attempts made before this sitting (a resumed run)
 
     def lines(self) -> list[str]:
-        rate = self.attempts / self.seconds if self.seconds > 0 else 0.0
+        made = self.attempts - self.resumed_at
+        rate = made / self.seconds if self.seconds > 0 else 0.0
+        sitting = f" ({made} in this sitting)" if self.resumed_at else ""
         return [
-            f"{'interrupted' if self.interrupted else 'finished'}: {self.attempts} attempts, {self.executed} executed "
+            f"{'interrupted' if self.interrupted else 'finished'}: {self.attempts} attempts{sitting}, "
+            f"{self.executed} executed "
             f"episodes, {self.contacts} with contact, archive {self.archive}, {self.generations} generations "
             f"({self.clones} clones of tried genomes reused, not simulated), "
             f"{self.seconds:.0f} s ({rate:.2f} attempts/s)",
@@ -262,6 +266,7 @@ class Run:
             self.evaluator.close()
             self.store.close()
             raise
+        resumed_at = self.counters["attempts"]
         interrupted = False
         bar = self._progress_bar(progress)
         with Interrupts() as self._interrupts:
@@ -288,6 +293,7 @@ class Run:
             time.perf_counter() - t0,
             interrupted,
             c["clones"],
+            resumed_at,
         )
 
     def _finished(self) -> bool:

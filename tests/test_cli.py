@@ -320,12 +320,17 @@ def test_a_damaged_checkpoint_falls_back_to_the_commit_point_before_it(small_run
     assert "damaged" in err and "no earlier commit point" in err and "Traceback" not in err
 
 
-def test_resume_extends_a_run(small_run, tmp_path):
+def test_resume_extends_a_run(small_run, tmp_path, capsys):
     import shutil
 
     out = tmp_path / "more-attempts"
     shutil.copytree(small_run, out)
     assert generate(out, "--seed", "2", "--resume", "--max-attempts", "36") == 0
+    finished = next(line for line in capsys.readouterr().out.splitlines() if line.startswith("finished:"))
+    assert finished.startswith("finished: 36 attempts (12 in this sitting), ")
+    seconds, rate = finished.rsplit(", ", 1)[1].removesuffix(" attempts/s)").split(" s (")
+    # the rate counts this sitting's 12 attempts (seconds are printed rounded to the unit, the rate to 0.01)
+    assert abs(float(rate) * float(seconds) - 12) <= 0.5 * float(rate) + 0.005 * float(seconds) + 1e-9
     assert [r["attempt"] for r in read_attempts(out)] == list(range(36))
     assert read_run_info(out)["config"]["max_attempts"] == 36
 
