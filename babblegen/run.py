@@ -174,7 +174,7 @@ class Run:
 
         cfg = self.config
         steps = {"lerobot": EpisodeEncoder(cfg.world.fps, with_default_features(self._features()), cfg.video_codec)}
-        if self.config.rerun:
+        if cfg.rerun:
             from babblegen.exporters.rerun import JpegFrames
 
             steps["rerun"] = JpegFrames()

@@ -2,7 +2,7 @@
 
 The expensive part of writing a LeRobot episode is per-episode work that does not depend on where the episode
 lands in the dataset: encoding its video and computing its statistics. `encode_episode` does that as LeRobot's
-default recording path does (``encode_video_frames`` with its default RGB settings, ``compute_episode_stats``),
+recording path does (``encode_video_frames`` with the run's codec, :func:`video_encoder`; ``compute_episode_stats``),
 in the worker that ran the rollout, so one coordinator can append the episodes of many workers (see
 ``exporters/lerobot.py``). The statistics are LeRobot's, computed for less (``exporters/lerobot_stats.py``).
 What depends on the position (frame and episode indexes) is left to the coordinator.
