@@ -101,6 +101,8 @@ def main() -> None:
         )
     base = results["libsvtav1"]
     for codec, r in results.items():
+        if codec == "libsvtav1":
+            continue
         print(
             f"{codec:>10} / libsvtav1: encode CPU x{r[0] / base[0]:.2f}, bytes x{r[2] / base[2]:.2f}, "
             f"read x{r[3] / base[3]:.2f}"

@@ -87,23 +87,24 @@ def frame_columns(frames: Frames, fps: int, features: dict) -> dict[str, np.ndar
     return columns
 
 
-# The constant-quality level per codec: LeRobot's default for SVT-AV1; for H.264, x264's own default, at which
-# the head-camera video is about as faithful as with LeRobot's AV1 default (PSNR 36.9 against 36.6 dB on the
-# default scene, for 1.1x the bytes; benchmarks/bench_codecs.py).
-CRF = {"h264": 23, "libsvtav1": 30}
+# The constant-quality level and speed preset per codec: LeRobot's defaults for SVT-AV1; for H.264, x264's
+# "veryfast" preset at CRF 22, as faithful to the head camera as x264's defaults (medium, CRF 23) for about half
+# the CPU and 1.04x the bytes, and about as faithful as LeRobot's AV1 default (benchmarks/bench_codecs.py).
+CRF = {"h264": 22, "libsvtav1": 30}
+PRESET = {"h264": "veryfast"}  # SVT-AV1: LeRobot's own preset
 # One encoder thread: episodes are encoded in the workers, one core each. (x264's own threads would compete with
 # the other workers' simulations, and for frames this small they cost more CPU in all and give larger files.)
 ENCODER_THREADS = 1
 
 
 def video_encoder(codec: str):
-    """The encoder settings for ``codec`` (LeRobot's ``RGBEncoderConfig``: its GOP size and preset, the CRF of
-    :data:`CRF`)."""
+    """The encoder settings for ``codec`` (LeRobot's ``RGBEncoderConfig``: its GOP size, the CRF and preset of
+    :data:`CRF` and :data:`PRESET`)."""
     from lerobot.configs.video import RGBEncoderConfig
 
     if codec not in VIDEO_CODECS:
         raise ValueError(f"unknown video codec {codec!r}; choose one of: {', '.join(VIDEO_CODECS)}")
-    return RGBEncoderConfig(vcodec=codec, crf=CRF[codec])
+    return RGBEncoderConfig(vcodec=codec, crf=CRF[codec], preset=PRESET.get(codec))
 
 
 def encode_video(images: np.ndarray, fps: int, codec: str = DEFAULT_VIDEO_CODEC) -> tuple[bytes, float]:
@@ -113,7 +114,6 @@ def encode_video(images: np.ndarray, fps: int, codec: str = DEFAULT_VIDEO_CODEC)
     _quiet_codecs()
     import av
     from lerobot.datasets.video_utils import get_video_duration_in_s
-    from PIL import Image
 
     encoder = video_encoder(codec)
     tmp = Path(tempfile.mkdtemp(prefix="babblegen-video-"))
@@ -125,7 +125,7 @@ def encode_video(images: np.ndarray, fps: int, codec: str = DEFAULT_VIDEO_CODEC)
             stream.pix_fmt = encoder.pix_fmt
             stream.height, stream.width = images.shape[1:3]
             for image in images:
-                packet = stream.encode(av.VideoFrame.from_image(Image.fromarray(image)))
+                packet = stream.encode(av.VideoFrame.from_ndarray(np.ascontiguousarray(image), format="rgb24"))
                 if packet:
                     output.mux(packet)
             packet = stream.encode()

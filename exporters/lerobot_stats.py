@@ -72,6 +72,15 @@ def numeric_stats(columns: dict[str, np.ndarray], features: dict) -> dict[str, d
     return out
 
 
+def _channel_counts(chw: np.ndarray) -> np.ndarray:
+    """(3, 256) counts of each channel's pixel values over (N, 3, H, W) uint8 frames: PIL's histogram of the
+    frames stacked into one image, three times faster than ``np.bincount`` (which widens every pixel to 64 bits)."""
+    from PIL import Image
+
+    hwc = np.ascontiguousarray(chw.transpose(0, 2, 3, 1)).reshape(-1, chw.shape[3], 3)
+    return np.asarray(Image.fromarray(hwc).histogram(), dtype=np.int64).reshape(3, 256)
+
+
 def image_stats(images: np.ndarray) -> dict[str, np.ndarray]:
     """The episode statistics LeRobot's ``compute_episode_stats`` records for a video feature (its sampled
     frames, per channel, scaled to [0, 1]), computed from per-channel counts of the 256 pixel values.
@@ -89,7 +98,7 @@ def image_stats(images: np.ndarray) -> dict[str, np.ndarray]:
 
     chw = np.stack([auto_downsample_height_width(images[i].transpose(2, 0, 1)) for i in sample_indices(len(images))])
     values = np.arange(256, dtype=np.float32)
-    counts = np.stack([np.bincount(chw[:, c].ravel(), minlength=256) for c in range(chw.shape[1])])
+    counts = _channel_counts(chw)
     total = int(counts[0].sum())
     running = RunningQuantileStats()
     running._count = total
