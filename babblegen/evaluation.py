@@ -94,6 +94,10 @@ class Evaluator(ABC):
     @abstractmethod
     def evaluate(self, commands: list[Command], attempts: list[int]) -> list[Rollout]: ...
 
+    def wait_ready(self) -> None:  # noqa: B027  (optional hook)
+        """Block until the evaluator can take commands. Evaluators whose workers start in the background (see
+        `ProcessEvaluator`) let the caller do its own start-up meanwhile; `submit` waits here in any case."""
+
     def attach_prepared(self, rollout: Rollout, attempt: int, wait: bool) -> bool:
         """Whether ``rollout`` (of ``attempt``, collected from this evaluator) holds its preparation; an
         evaluator that prepares rollouts later than it returns them (see `ProcessEvaluator`) attaches it here,

@@ -277,9 +277,16 @@ class ProcessEvaluator(PoolEvaluator):
         self._lost: set[int] = set()  # attempts whose preparation died with a worker
         self._arrived = threading.Condition()
         self.ctx = mp.get_context("spawn")
-        self.workers = [self._spawn() for _ in range(n)]
-        for w in self.workers:
-            self._await_ready(w)
+        self.workers = [self._spawn() for _ in range(n)]  # they start in the background: see `wait_ready`
+        self._starting = list(self.workers)
+
+    def wait_ready(self) -> None:
+        while self._starting:
+            self._await_ready(self._starting.pop(0))
+
+    def submit(self, commands: list[Command], attempts: list[int]) -> None:
+        self.wait_ready()
+        super().submit(commands, attempts)
 
     def _spawn(self) -> _Worker:
         parent, child = self.ctx.Pipe()

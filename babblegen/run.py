@@ -159,6 +159,20 @@ class Run:
         self.explorer = build_explorer(cfg, arm)
         self.evaluator = build_evaluator(self.task, cfg, prepare=self._preparers())
         self.task_text = f"{cfg.explorer} babbling in {cfg.task}"
+        try:  # while worker processes start (seconds), import what the sinks need here
+            self._import_sink_libraries()
+            self.evaluator.wait_ready()
+        except BaseException:
+            self.evaluator.close()
+            raise
+
+    def _import_sink_libraries(self) -> None:
+        from babblegen.exporters.lerobot import import_lerobot
+
+        import_lerobot()
+        if self.config.rerun:
+            import rerun  # noqa: F401
+            import rerun.blueprint  # noqa: F401
 
     def _features(self) -> dict:
         from babblegen.exporters.lerobot_encoding import features
