@@ -134,7 +134,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--video-codec",
         choices=VIDEO_CODECS,
         default=None,
-        help="head-camera video codec; libsvtav1 is LeRobot's own default, h264 encodes about 3x faster for "
+        help="head-camera video codec; libsvtav1 is LeRobot's own default, h264 encodes about 6x faster for "
         "about the same fidelity and size [default: h264]",
     )
     g.add_argument("--no-progress", action="store_true", help="no progress bar")

@@ -27,6 +27,8 @@ from pathlib import Path
 
 import numpy as np
 
+from babblegen.evaluation import Evaluator
+
 
 def record(n: int, seed: int, width: int) -> list:
     """``n`` real rollouts of random one-waypoint genomes, in order (infeasible ones included), each executed
@@ -51,10 +53,9 @@ def record(n: int, seed: int, width: int) -> list:
     return rollouts
 
 
-class ReplayEvaluator:
-    """Stands in for ``workers`` workers: hands back recorded rollouts after the time those workers would need."""
-
-    failures = 0
+class ReplayEvaluator(Evaluator):
+    """Stands in for ``workers`` workers: hands back recorded rollouts after the time those workers would need
+    (their episodes prepared, as a worker prepares them before or soon after returning them)."""
 
     def __init__(self, rollouts: list, workers: int):
         self.rollouts, self.workers = rollouts, workers
@@ -80,9 +81,6 @@ class ReplayEvaluator:
     def evaluate(self, commands: list, attempts: list[int]) -> list:
         self.submit(commands, attempts)
         return self.collect()
-
-    def close(self) -> None:
-        pass
 
 
 def worker_seconds(rollout) -> float:
@@ -207,10 +205,11 @@ def main() -> None:
     print(f"{'pop':>4} {'workers':>8} {'eps/s':>7} {'ideal':>7} {'kept':>6} {'busy':>6}  coordinator s per episode")
     for r in results:
         ideal = r["workers"] / per_executed if r["workers"] else math.inf
+        kept = f"{min(1.0, r['episodes_per_s'] / ideal):6.0%}" if r["workers"] else f"{'-':>6}"
         sinks = " ".join(f"{k} {v:.3f}" for k, v in r["sinks"].items())
         print(
             f"{r['population']:>4} {r['workers']:>8} {r['episodes_per_s']:7.2f} {ideal:7.2f} "
-            f"{min(1.0, r['episodes_per_s'] / ideal):6.0%} {r['coordinator_busy']:6.0%}  "
+            f"{kept} {r['coordinator_busy']:6.0%}  "
             f"descriptor {r['descriptor']:.3f} {sinks}"
         )
     if args.plot:
