@@ -205,6 +205,9 @@ def main(argv: list[str] | None = None) -> int:
     except ConfigError as e:
         print(f"babblegen: error: {e}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:  # before a run's loop, which handles its own interruptions (while starting up)
+        print(_interrupted_at_start(getattr(args, "out", None)), file=sys.stderr)
+        return 130
     except Exception as e:
         full = _disk_full(e)
         if full is None:
@@ -216,6 +219,17 @@ def main(argv: list[str] | None = None) -> int:
             file=sys.stderr,
         )
         return 1
+
+
+def _interrupted_at_start(out: str | None) -> str:
+    from babblegen.run import is_babblegen_dataset
+
+    said = "babblegen: interrupted before the first attempt"
+    if out is None or not Path(out).is_dir() or not any(Path(out).iterdir()):
+        return f"{said}; nothing was written"
+    if is_babblegen_dataset(Path(out)):
+        return f"{said}; resume with: babblegen generate --out {out} --resume"
+    return f"{said}; {out} holds an incomplete start: delete it, then run the same command again"
 
 
 def _disk_full(error: BaseException | None) -> BaseException | None:

@@ -54,6 +54,7 @@ def _worker_main(conn, task_name: str, settings: WorldSettings, run_seed: int, p
     whether the batch has rollouts left to hand out, so whether the next request is about to arrive."""
     # Ctrl-C in a terminal reaches the whole process group: the coordinator stops the run and then the workers
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})  # blocked since the spawn (`_spawn`)
     os.environ.setdefault("LP_NUM_THREADS", "1")  # one rendering thread per worker process
     import torch
 
@@ -293,7 +294,13 @@ class ProcessEvaluator(PoolEvaluator):
         p = self.ctx.Process(
             target=_worker_main, args=(child, self.task.name, self.settings, self.run_seed, self.prepare), daemon=True
         )
-        p.start()
+        # born with Ctrl-C blocked (the mask survives the spawn), so that one arriving while the worker imports
+        # its libraries does not print a traceback; the worker then ignores it (`_worker_main`)
+        blocked = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+        try:
+            p.start()
+        finally:
+            signal.pthread_sigmask(signal.SIG_SETMASK, blocked)
         child.close()
         return _Worker(p, parent)
 
@@ -431,6 +438,8 @@ class ProcessEvaluator(PoolEvaluator):
 
     def close(self) -> None:
         self._stop_dispatch()
+        for w in self._starting:  # closed before they were ready (an error, Ctrl-C): nothing of theirs to keep
+            w.process.kill()
         for w in self.workers:
             with contextlib.suppress(BrokenPipeError, OSError):
                 w.conn.send(None)

@@ -418,3 +418,21 @@ def test_a_resumed_run_keeps_its_video_codec():
         resumed_config(stored, {"video_codec": "libsvtav1"})
     del stored["video_codec"]  # stored before the setting existed, when every run recorded AV1
     assert resumed_config(stored).video_codec == "libsvtav1"
+
+
+@pytest.mark.sim
+def test_ctrl_c_while_a_run_starts_exits_130_with_one_line(tmp_path):
+    """Ctrl-C during the seconds of start-up (imports, workers warming up) stops at once, without a traceback."""
+    out = tmp_path / "early"
+    cmd = [sys.executable, "-m", "babblegen.cli", "generate", "--out", str(out), *SMALL]
+    cmd[cmd.index("--workers") + 1] = "2"
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, start_new_session=True)
+    time.sleep(4)  # start-up takes 15 s or more: its workers are still warming up or not yet started
+    assert proc.poll() is None
+    os.killpg(proc.pid, signal.SIGINT)
+    started = time.monotonic()
+    assert proc.wait(timeout=60) == 130
+    assert time.monotonic() - started < 10  # workers still warming up are not waited for
+    printed = proc.stdout.read().decode()
+    assert "Traceback" not in printed and "leaked" not in printed, printed
+    assert "babblegen: interrupted before the first attempt" in printed
