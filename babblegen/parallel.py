@@ -53,8 +53,7 @@ def _worker_main(conn, task_name: str, settings: WorldSettings, run_seed: int, p
     fills the time a worker would otherwise wait for the others at the end of a generation. ``more`` says
     whether the batch has rollouts left to hand out, so whether the next request is about to arrive."""
     # Ctrl-C in a terminal reaches the whole process group: the coordinator stops the run and then the workers
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})  # blocked since the spawn (`_spawn`)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # (already so when spawned from the main thread: `_spawn`)
     os.environ.setdefault("LP_NUM_THREADS", "1")  # one rendering thread per worker process
     import torch
 
@@ -97,6 +96,20 @@ def _worker_main(conn, task_name: str, settings: WorldSettings, run_seed: int, p
         if prepare is not None and rollout.feasible:
             unprepared[attempt] = rollout
     world.close()
+
+
+@contextlib.contextmanager
+def _ctrl_c_ignored():
+    """Ignore SIGINT in this process meanwhile (from the main thread only, where Python allows it): a process
+    spawned then starts with it ignored, and Python installs no KeyboardInterrupt handler in it."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 class _BatchThread(Evaluator):
@@ -294,13 +307,8 @@ class ProcessEvaluator(PoolEvaluator):
         p = self.ctx.Process(
             target=_worker_main, args=(child, self.task.name, self.settings, self.run_seed, self.prepare), daemon=True
         )
-        # born with Ctrl-C blocked (the mask survives the spawn), so that one arriving while the worker imports
-        # its libraries does not print a traceback; the worker then ignores it (`_worker_main`)
-        blocked = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
-        try:
+        with _ctrl_c_ignored():  # inherited: a Ctrl-C while the worker imports its libraries prints no traceback
             p.start()
-        finally:
-            signal.pthread_sigmask(signal.SIG_SETMASK, blocked)
         child.close()
         return _Worker(p, parent)
 

@@ -3,6 +3,7 @@ agree, interruption and resume lose nothing, and bad input is refused without to
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import os
 import signal
@@ -427,8 +428,11 @@ def test_ctrl_c_while_a_run_starts_exits_130_with_one_line(tmp_path):
     cmd = [sys.executable, "-m", "babblegen.cli", "generate", "--out", str(out), *SMALL]
     cmd[cmd.index("--workers") + 1] = "2"
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, start_new_session=True)
-    time.sleep(4)  # start-up takes 15 s or more: its workers are still warming up or not yet started
-    assert proc.poll() is None
+    deadline = time.monotonic() + 60
+    while not _spawned_workers(proc.pid) and time.monotonic() < deadline:
+        assert proc.poll() is None
+        time.sleep(0.05)
+    time.sleep(0.5)  # they are importing their libraries (seconds), where a Ctrl-C printed tracebacks
     os.killpg(proc.pid, signal.SIGINT)
     started = time.monotonic()
     assert proc.wait(timeout=60) == 130
@@ -436,3 +440,14 @@ def test_ctrl_c_while_a_run_starts_exits_130_with_one_line(tmp_path):
     printed = proc.stdout.read().decode()
     assert "Traceback" not in printed and "leaked" not in printed, printed
     assert "babblegen: interrupted before the first attempt" in printed
+
+
+def _spawned_workers(pid: int) -> list[int]:
+    """The worker processes ``pid`` has spawned so far (multiprocessing's spawn)."""
+    children = Path(f"/proc/{pid}/task/{pid}/children")
+    found = []
+    for child in children.read_text().split() if children.exists() else []:
+        with contextlib.suppress(OSError):
+            if b"spawn_main" in Path(f"/proc/{child}/cmdline").read_bytes():
+                found.append(int(child))
+    return found
