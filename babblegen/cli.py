@@ -205,7 +205,7 @@ def main(argv: list[str] | None = None) -> int:
     except ConfigError as e:
         print(f"babblegen: error: {e}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:  # before a run's loop, which handles its own interruptions (while starting up)
+    except KeyboardInterrupt:  # while a run starts up (its loop handles its own interruptions)
         print(_interrupted_at_start(getattr(args, "out", None)), file=sys.stderr)
         return 130
     except Exception as e:
