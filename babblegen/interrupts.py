@@ -71,3 +71,26 @@ class Interrupts:
             yield
         finally:
             self._closing = False
+
+
+class StartupInterrupts:
+    """Ctrl-C while a run starts up (imports, workers warming up), before `Interrupts` takes over: a
+    KeyboardInterrupt at once, and again at `check()`, because a library can swallow the first one (a bare
+    ``except:`` around an optional import) and the run would then go on as if nothing was pressed."""
+
+    def __enter__(self) -> StartupInterrupts:
+        self.pending = False
+        self._previous = signal.getsignal(signal.SIGINT)
+        signal.signal(signal.SIGINT, self._handle)
+        return self
+
+    def __exit__(self, *exc) -> None:
+        signal.signal(signal.SIGINT, self._previous)
+
+    def _handle(self, signum: int, frame) -> None:
+        self.pending = True
+        raise KeyboardInterrupt
+
+    def check(self) -> None:
+        if self.pending:
+            raise KeyboardInterrupt

@@ -296,7 +296,8 @@ class ProcessEvaluator(PoolEvaluator):
 
     def wait_ready(self) -> None:
         while self._starting:
-            self._await_ready(self._starting.pop(0))
+            self._await_ready(self._starting[0])
+            self._starting.pop(0)  # only now: `close` kills the workers still starting
 
     def submit(self, commands: list[Command], attempts: list[int]) -> None:
         self.wait_ready()

@@ -18,6 +18,7 @@ import shutil
 import sys
 import time
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -26,7 +27,7 @@ import numpy as np
 
 from babblegen.config import ConfigError, RunConfig, resumed_config
 from babblegen.exporters.sidecar import attempt_row, clone_row
-from babblegen.interrupts import Interrupted, Interrupts
+from babblegen.interrupts import Interrupted, Interrupts, StartupInterrupts
 from babblegen.store import RUN_INFO, AttemptRecord, RunStore, atomic_write, read_run_info, sidecar_dir
 from babblegen.world.rollout import Command
 
@@ -145,7 +146,7 @@ class Run:
         return f"babblegen/{self.out.name or 'dataset'}"
 
     # --- opening --------------------------------------------------------------------------------------------
-    def _build_parts(self) -> None:
+    def _build_parts(self, check_interrupt: Callable[[], None]) -> None:
         from babblegen.assembly import build_descriptor, build_evaluator, build_explorer
         from babblegen.evaluation import arm_info
         from babblegen.tasks import get_robot, get_task
@@ -161,6 +162,7 @@ class Run:
         self.task_text = f"{cfg.explorer} babbling in {cfg.task}"
         try:  # while worker processes start (seconds), import what the sinks need here
             self._import_sink_libraries()
+            check_interrupt()
             self.evaluator.wait_ready()
         except BaseException:
             self.evaluator.close()
@@ -273,13 +275,15 @@ class Run:
         t0 = time.perf_counter()
         if self.resumed:
             self.store.lock.acquire(self.out)  # before anything is rolled back: another run may be writing
-        self._build_parts()
-        try:
-            self._open_resumed(echo) if self.resumed else self._open_new()
-        except BaseException:
-            self.evaluator.close()
-            self.store.close()
-            raise
+        with StartupInterrupts() as starting:
+            self._build_parts(starting.check)
+            try:
+                self._open_resumed(echo) if self.resumed else self._open_new()
+                starting.check()
+            except BaseException:
+                self.evaluator.close()
+                self.store.close()
+                raise
         resumed_at = self.counters["attempts"]
         interrupted = False
         bar = self._progress_bar(progress)
