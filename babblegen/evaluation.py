@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import time
 from abc import ABC, abstractmethod
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from typing import Any
 
 import numpy as np
@@ -52,15 +52,44 @@ def warm_up(world: World, prepare: Prepare | None) -> None:
 
 
 def seeded_rollout(
-    world: World, command: Command, run_seed: int, attempt: int, prepare: Prepare | None = None
+    world: World,
+    command: Command,
+    run_seed: int,
+    attempt: int,
+    prepare: Prepare | None = None,
+    defer_render: bool = False,
 ) -> Rollout:
     """One rollout whose randomness (IK restarts, planner) depends only on (run_seed, attempt), then
-    ``prepare`` (picklable: it travels to worker processes and Ray actors)."""
+    ``prepare`` (picklable: it travels to worker processes and Ray actors). With ``defer_render`` the frames
+    between the first and last are not rendered yet and nothing is prepared: `render_and_prepare` does both."""
     world.rng = np.random.default_rng([run_seed, attempt])
-    rollout = world.rollout(command)
-    if prepare is not None:
+    rollout = world.rollout(command, defer_render=defer_render)
+    if prepare is not None and not defer_render:
         prepare(rollout)
     return rollout
+
+
+def render_and_prepare(world: World, rollout: Rollout, prepare: Prepare) -> None:
+    """Finish a rollout made with ``defer_render`` (here or by another World): render its frames, then prepare
+    it. Its timings then count all the rendering in ``render``, and all this work in ``prepare``."""
+    for _ in render_and_prepare_stepwise(world, rollout, prepare):
+        pass
+
+
+def render_and_prepare_stepwise(world: World, rollout: Rollout, prepare: Prepare) -> Iterator[None]:
+    """`render_and_prepare`, pausing (``yield``) every few rendered frames: the World may run other rollouts in
+    the pauses (see `World.render_frames_stepwise`); the seconds counted are those spent on this rollout."""
+    if rollout.frames is None:
+        return
+    rendering, t = 0.0, time.perf_counter()
+    for _ in world.render_frames_stepwise(rollout.frames):
+        rendering += time.perf_counter() - t
+        yield
+        t = time.perf_counter()
+    rendering += time.perf_counter() - t
+    prepare(rollout)
+    rollout.timings["render"] = rollout.timings.get("render", 0.0) + rendering
+    rollout.timings["prepare"] = rollout.timings.get("prepare", 0.0) + rendering
 
 
 def arm_info(task: TaskSpec) -> dict:

@@ -24,6 +24,7 @@ import time
 import traceback
 from abc import abstractmethod
 from collections import deque
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from multiprocessing.connection import wait
 
@@ -38,6 +39,7 @@ log = logging.getLogger(__name__)
 # How long a worker with episodes to prepare waits for its next rollout when the batch has more to hand out,
 # before it prepares one (the coordinator answers a returned rollout with the next request in milliseconds).
 NEXT_REQUEST_GRACE_S = 0.05
+_DONE = object()
 
 
 def _worker_main(conn, task_name: str, settings: WorldSettings, run_seed: int, prepare: Prepare | None) -> None:
@@ -48,53 +50,62 @@ def _worker_main(conn, task_name: str, settings: WorldSettings, run_seed: int, p
     - ``("prepare", attempt, rollout)``: prepare a rollout another worker simulated;
     - ``("forget", attempt)``: another worker prepares this one.
 
-    A rollout's preparation (``prepare``: encoding the episode) waits until no request is pending, and goes back
-    as a ``"prepared"`` message. The movements, which the next generation waits for, come first; the encoding
-    fills the time a worker would otherwise wait for the others at the end of a generation. ``more`` says
-    whether the batch has rollouts left to hand out, so whether the next request is about to arrive."""
+    With ``prepare`` (encoding the episode), a rollout goes back with only its first and last frames rendered
+    (`World.rollout`'s ``defer_render``); rendering the others and preparing the episode wait until no request
+    is pending, pause every few frames for one that arrives, and go back as a ``"prepared"`` message. The
+    movements, which the next generation waits for, come first; rendering and encoding fill the time a worker
+    would otherwise wait for the others at the end of a generation. ``more`` says whether the batch has
+    rollouts left to hand out, so whether the next request is about to arrive."""
     # Ctrl-C in a terminal reaches the whole process group: the coordinator stops the run and then the workers
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # (already so when spawned from the main thread: `_spawn`)
     os.environ.setdefault("LP_NUM_THREADS", "1")  # one rendering thread per worker process
     import torch
 
     torch.set_num_threads(1)  # one core per worker: idle torch threads would spin against the other processes
-    from babblegen.evaluation import seeded_rollout, warm_up
+    from babblegen.evaluation import render_and_prepare_stepwise, seeded_rollout, warm_up
     from babblegen.tasks import get_task
     from babblegen.world.world import World
-
-    def prepare_and_send(attempt: int, rollout: Rollout) -> None:
-        prepare(rollout)
-        conn.send(("prepared", (attempt, rollout.prepared, rollout.timings.get("prepare", 0.0))))
 
     world = World(get_task(task_name), settings, seed=run_seed)
     warm_up(world, prepare)
     conn.send(("ready", None))
-    unprepared: dict[int, Rollout] = {}  # simulated here, oldest first
+    pending: dict[int, Rollout] = {}  # to render and prepare here (simulated here or handed over), in order
+    work: tuple[int, Rollout, Iterator[None]] | None = None  # the preparation under way, and its steps
     more = False
     while True:
-        if unprepared and not conn.poll(NEXT_REQUEST_GRACE_S if more else 0.0):
-            attempt = next(iter(unprepared))
-            prepare_and_send(attempt, unprepared.pop(attempt))
+        if (work or pending) and not conn.poll(NEXT_REQUEST_GRACE_S if more else 0.0):
+            more = False  # (no request came: the batch's last rollouts went to other workers)
+            if work is None:
+                attempt = next(iter(pending))
+                rollout = pending.pop(attempt)
+                work = (attempt, rollout, render_and_prepare_stepwise(world, rollout, prepare))
+            attempt, rollout, steps = work
+            if next(steps, _DONE) is _DONE:
+                timings = {k: rollout.timings[k] for k in ("render", "prepare") if k in rollout.timings}
+                conn.send(("prepared", (attempt, rollout.prepared, timings)))
+                work = None
             continue
         msg = conn.recv()
         if msg is None:
             break
         kind, attempt, *rest = msg
         if kind == "forget":
-            unprepared.pop(attempt, None)
+            pending.pop(attempt, None)
+            if work is not None and work[0] == attempt:
+                work = None
             continue
         if kind == "prepare":
-            prepare_and_send(attempt, rest[0])
+            pending[attempt] = rest[0]
             continue
         command, more = rest
         try:
-            rollout = seeded_rollout(world, command, run_seed, attempt)
+            rollout = seeded_rollout(world, command, run_seed, attempt, defer_render=prepare is not None)
         except Exception:
             conn.send(("error", traceback.format_exc(limit=-3)))
             continue
         conn.send(("ok", rollout))
         if prepare is not None and rollout.feasible:
-            unprepared[attempt] = rollout
+            pending[attempt] = rollout
     world.close()
 
 
@@ -267,10 +278,11 @@ class _Worker:
 
 
 class ProcessEvaluator(PoolEvaluator):
-    """``n`` local worker processes. Each returns a rollout as soon as it is simulated and prepares the episode
-    when it has no rollout to run (`_worker_main`); a worker left with nothing to do at the end of a batch takes
-    over preparations from a busy one (`_share_work`). `attach_prepared` hands each preparation to its rollout,
-    and prepares here those whose worker died before sending them."""
+    """``n`` local worker processes. Each returns a rollout as soon as it is simulated, and renders and prepares
+    the episode when it has no rollout to run (`_worker_main`); a worker left with nothing to do at the end of a
+    batch takes over preparations from a busy one (`_share_work`). `attach_prepared` hands each preparation to
+    its rollout. The preparations a worker owed when it died go to its replacement (this process has no
+    renderer), at most ``retries`` times per attempt."""
 
     kind = "worker process"
 
@@ -286,9 +298,9 @@ class ProcessEvaluator(PoolEvaluator):
     ):
         super().__init__(n, timeout, retries)
         self.task, self.settings, self.run_seed, self.prepare = task, settings, run_seed, prepare
-        self._prepared: dict[int, tuple[dict, float]] = {}  # attempt -> (preparation, seconds it took)
+        self._prepared: dict[int, tuple[dict, dict]] = {}  # attempt -> (preparation, its render/prepare seconds)
         self._unprepared: dict[int, Rollout] = {}  # returned rollouts whose preparation has not arrived
-        self._lost: set[int] = set()  # attempts whose preparation died with a worker
+        self._handed_over: dict[int, int] = {}  # attempt -> times its preparation went to a replacement worker
         self._arrived = threading.Condition()
         self.ctx = mp.get_context("spawn")
         self.workers = [self._spawn() for _ in range(n)]  # they start in the background: see `wait_ready`
@@ -341,10 +353,10 @@ class ProcessEvaluator(PoolEvaluator):
                 status, value = w.conn.recv()
                 with self._arrived:
                     if status == "prepared":
-                        attempt, prepared, seconds = value
+                        attempt, prepared, timings = value
                         w.owed.pop(attempt, None)
                         if self._unprepared.pop(attempt, None) is not None:  # else already here (taken over)
-                            self._prepared[attempt] = (prepared, seconds)
+                            self._prepared[attempt] = (prepared, timings)
                         self._arrived.notify_all()
                     elif status == "ok":
                         if self.prepare is not None and value.feasible:
@@ -381,13 +393,19 @@ class ProcessEvaluator(PoolEvaluator):
         w = self.workers[slot]
         w.process.kill()
         w.process.join(5)
-        with self._arrived:  # what it owed is prepared by `attach_prepared` instead
-            self._lost.update(w.owed)
-            w.owed.clear()
-            self._arrived.notify_all()
         fresh = self._spawn()
         self._await_ready(fresh)
         self.workers[slot] = fresh
+        for attempt in list(w.owed):  # what it owed, its replacement renders and prepares
+            self._hand_over(fresh, attempt)
+
+    def _hand_over(self, w: _Worker, attempt: int) -> None:
+        tries = self._handed_over[attempt] = self._handed_over.get(attempt, 0) + 1
+        if tries > self.max_retries:
+            raise RuntimeError(f"preparing attempt {attempt}'s episode failed on {tries} {self.kind}es")
+        with self._arrived:
+            w.owed[attempt] = None
+        self._tell(w, ("prepare", attempt, self._unprepared[attempt]))
 
     def attach_prepared(self, rollout: Rollout, attempt: int, wait: bool) -> bool:
         if self.prepare is None or not rollout.feasible:
@@ -395,24 +413,18 @@ class ProcessEvaluator(PoolEvaluator):
         while True:
             with self._arrived:
                 if attempt in self._prepared:
-                    prepared, seconds = self._prepared.pop(attempt)
-                    self._lost.discard(attempt)
+                    prepared, timings = self._prepared.pop(attempt)
+                    self._handed_over.pop(attempt, None)
                     rollout.prepared.update(prepared)
-                    rollout.timings["prepare"] = seconds
+                    rollout.timings.update(timings)
                     return True
-                lost = attempt in self._lost
-                self._lost.discard(attempt)
-                if not lost and self._thread is not None and self._thread.is_alive():
+                if self._thread is not None and self._thread.is_alive():
                     if not wait:
                         return False
                     self._arrived.wait(0.05)  # the dispatch thread reads the workers' messages
                     continue
-            if lost:  # its worker died before sending it
-                self._unprepared.pop(attempt, None)
-                self.prepare(rollout)
-                return True
             self._read_between_batches(0.05 if wait else 0.0)
-            if not wait and attempt not in self._prepared and attempt not in self._lost:
+            if not wait and attempt not in self._prepared:
                 return False
 
     def _share_work(self, busy: set[int]) -> None:

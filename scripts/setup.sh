@@ -71,7 +71,8 @@ stamp_want=$(cat pyproject.toml scripts/setup.sh | sha256sum | cut -d' ' -f1)
 if [ "$(cat .venv/.setup-stamp 2>/dev/null)" != "$stamp_want" ]; then
   say "installing babblegen (editable, with dev extras) into .venv; the first time takes a few minutes"
   .venv/bin/python -m pip install -q --upgrade pip
-  .venv/bin/python -m pip install -q -e ".[dev]"
+  # no wheel cache: the downloads (PyTorch's are several GB) would stay in ~/.cache beside their installed copy
+  .venv/bin/python -m pip install -q --no-cache-dir -e ".[dev]"
   echo "$stamp_want" > .venv/.setup-stamp
 else
   say ".venv is up to date"

@@ -9,9 +9,23 @@ explicitly for the others); `pytest -m "not sim"` is the fast tier, `pytest` run
 
 from __future__ import annotations
 
+import os
+import shutil
+import tempfile
 from pathlib import Path
 
 import pytest
+
+# LeRobot loads a dataset through Hugging Face `datasets`, which caches an Arrow copy of its tables: the tests'
+# copies go to a folder of their own, removed at the end, not to the user's cache (this process, the worker
+# processes and the CLI subprocesses alike)
+_HF_DATASETS_CACHE = tempfile.mkdtemp(prefix="babblegen-tests-hf-datasets-")
+os.environ["HF_DATASETS_CACHE"] = _HF_DATASETS_CACHE
+
+
+def pytest_sessionfinish(session, exitstatus) -> None:
+    shutil.rmtree(_HF_DATASETS_CACHE, ignore_errors=True)
+
 
 # fixtures that build a World or make a dataset with the simulator
 SIM_FIXTURES = {"small_noveb_dataset", "small_random_dataset", "small_run", "world", "push", "one_worker"}

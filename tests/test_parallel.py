@@ -3,6 +3,7 @@ and a worker that dies mid-run is replaced without losing or changing anything."
 
 from __future__ import annotations
 
+import hashlib
 import os
 import signal
 import time
@@ -33,6 +34,13 @@ def assert_same_dataset(a, b) -> None:
     assert da.meta.total_episodes == db.meta.total_episodes > 0
     for key in ("observation.state", "action", "observation.ee_pos", "observation.environment_state"):
         np.testing.assert_array_equal(da.hf_dataset[key], db.hf_dataset[key])
+    # the same pixels, encoded the same way: worker processes render most frames after the movement
+    videos_a, videos_b = video_digests(a), video_digests(b)
+    assert videos_a == videos_b and len(videos_a) > 0
+
+
+def video_digests(root) -> dict[str, str]:
+    return {str(p.relative_to(root)): hashlib.sha256(p.read_bytes()).hexdigest() for p in root.glob("videos/**/*.mp4")}
 
 
 @pytest.fixture(scope="module")
@@ -118,28 +126,38 @@ def test_killed_worker_is_replaced_and_its_rollout_retried():
             np.testing.assert_array_equal(g.final_poses, e.final_poses)
 
 
-class SlowPreparation:
-    """An episode preparation slow enough for a test to kill the worker in the middle of it; its result is the
-    number of frames."""
+class ImageDigest:
+    """An episode preparation that takes ``seconds`` (long enough for a test to kill the worker in the middle of
+    it); its result is the number of frames and a digest of their pixels."""
 
-    def __call__(self, frames) -> int:
-        time.sleep(2)
-        return len(frames)
+    def __init__(self, seconds: float):
+        self.seconds = seconds
+
+    def __call__(self, frames) -> tuple[int, str]:
+        time.sleep(self.seconds)
+        return len(frames.images), hashlib.sha256(frames.images.tobytes()).hexdigest()
 
 
-def test_episodes_are_prepared_after_the_batch_and_here_if_their_worker_dies():
-    ev = ProcessEvaluator(get_task("noveb_tabletop"), SETTINGS, 9, n=2, prepare=Preparers({"n": SlowPreparation()}))
+def test_episodes_are_rendered_and_prepared_after_the_batch_and_by_a_replacement_if_their_worker_dies():
+    task, commands, attempts = get_task("noveb_tabletop"), _commands(6), list(range(6))
+    reference = LocalEvaluator(task, SETTINGS, run_seed=9, prepare=Preparers({"n": ImageDigest(0)}))
+    inline = dict(zip(attempts, reference.evaluate(commands, attempts), strict=True))
+    reference.close()
+
+    ev = ProcessEvaluator(task, SETTINGS, 9, n=2, prepare=Preparers({"n": ImageDigest(2)}))
     try:
-        commands, attempts = _commands(6), list(range(6))
         t = time.perf_counter()
         rollouts = ev.evaluate(commands, attempts)
         executed = [(r, a) for r, a in zip(rollouts, attempts, strict=True) if r.feasible]
         assert len(executed) >= 3
         assert not any(ev.attach_prepared(r, a, wait=False) for r, a in executed), "preparations come later"
+        assert all(r.frames.images is None and len(r.frames.end_images) == 2 for r, _ in executed)
+        assert all(np.array_equal(r.after_image, inline[a].after_image) for r, a in executed)
         os.kill(ev.workers[0].process.pid, signal.SIGKILL)  # it owes preparations
         for r, a in executed:
             assert ev.attach_prepared(r, a, wait=True)
-            assert r.prepared == {"n": len(r.frames)} and r.timings["prepare"] >= 2
+            assert r.prepared == inline[a].prepared, "the same pixels as a rollout rendered in one go"
+            assert r.timings["prepare"] >= 2 and r.timings["render"] > 0
         assert ev.failures == 1 and all(w.process.is_alive() for w in ev.workers)
         assert time.perf_counter() - t < 2 * len(executed) + 60
     finally:

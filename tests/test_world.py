@@ -137,6 +137,25 @@ def test_head_image_is_a_real_render(world):
     np.testing.assert_array_equal(w._render(), scene)  # reset put the can back
 
 
+def test_deferred_frames_render_to_the_same_pixels_even_with_other_rollouts_in_between(world):
+    """Worker processes render most frames after the movement, from the recorded states, pausing for other
+    movements: the episode's pixels are those of a rollout rendered in one go, in a contact-rich movement."""
+    w = world
+    w.rng = np.random.default_rng(5)
+    whole = w.rollout(waypoints(w, SWEEP_A))
+    w.rng = np.random.default_rng(5)
+    deferred = w.rollout(waypoints(w, SWEEP_A), defer_render=True)
+    assert whole.touched.any() and deferred.frames.images is None and len(deferred.frames.end_images) == 2
+    np.testing.assert_array_equal(deferred.after_image, whole.after_image)
+    np.testing.assert_array_equal(deferred.frames.state, whole.frames.state)
+    steps = w.render_frames_stepwise(deferred.frames, frames_per_step=3)
+    next(steps)
+    w.rollout(waypoints(w, SWEEP_B))  # in a pause: the scene is rebuilt and the objects pushed elsewhere
+    assert list(steps) == [None] * ((len(whole.frames) - 2) // 3 - 1)
+    assert deferred.frames.end_images is None
+    np.testing.assert_array_equal(deferred.frames.images, whole.frames.images)
+
+
 def test_before_image_is_the_reset_scene(world):
     w = world
     w.reset()

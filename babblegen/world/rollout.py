@@ -34,8 +34,10 @@ class Frames:
     ee_pos: np.ndarray  # (T, 3) tool point, world frame
     object_poses: np.ndarray  # (T, n_objects, 7) x, y, z, qw, qx, qy, qz
     contacts: np.ndarray  # (T, n_objects) 1 where the arm touched that object since the previous frame
-    images: np.ndarray  # (T, H, W, 3) uint8 head camera
+    images: np.ndarray | None  # (T, H, W, 3) uint8 head camera; None until rendered when rendering is deferred
     time: np.ndarray | None = None  # (T,) simulated seconds since the movement began; t / fps by construction
+    # (2, H, W, 3): frames 0 and T - 1, rendered with the movement when the others are deferred (`World.rollout`)
+    end_images: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.state)
@@ -58,8 +60,13 @@ class Rollout:
 
     @property
     def before_image(self) -> np.ndarray | None:
-        return None if self.frames is None else self.frames.images[0]
+        return self._end_image(0)
 
     @property
     def after_image(self) -> np.ndarray | None:
-        return None if self.frames is None else self.frames.images[-1]
+        return self._end_image(-1)
+
+    def _end_image(self, end: int) -> np.ndarray | None:
+        if self.frames is None:
+            return None
+        return (self.frames.images if self.frames.images is not None else self.frames.end_images)[end]

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import gc
 import time
+from collections.abc import Iterator
 
 import gymnasium as gym
 import numpy as np
@@ -248,8 +249,16 @@ class World:
         self.env.reset(options={"reconfigure": True})
         self._bind_scene()
 
-    def rollout(self, command: Command) -> Rollout:
-        """Plan and, if feasible, execute and record one command. The scene is reset first."""
+    def rollout(self, command: Command, defer_render: bool = False) -> Rollout:
+        """Plan and, if feasible, execute and record one command. The scene is reset first.
+
+        The first and last frames are rendered during the movement (the last is the behaviour image); the
+        others after it, from their recorded joint positions and object poses (`render_frames`). Rendering a
+        frame from its recorded state rather than from the live simulation makes its pixels a function of what
+        the episode records, wherever and whenever it is rendered: with ``defer_render`` they are left to the
+        caller (``frames.images`` is None, ``frames.end_images`` holds the two). Rendering is half of a typical
+        rollout; a worker that defers it returns the movement sooner and renders when it would otherwise wait
+        for the others."""
         t_start = time.perf_counter()
         out_path, reason, targets, planner, timings = self.plan_command(command)
         if out_path is None:
@@ -274,11 +283,12 @@ class World:
         t_sim = t_render = 0.0
         touched_since = np.zeros(len(self._object_entities), dtype=bool)
 
-        def record(step: int) -> None:
+        def record(step: int, render: bool = False) -> None:
             nonlocal t_render, touched_since
-            t0 = time.perf_counter()
-            rec["images"].append(self._render())
-            t_render += time.perf_counter() - t0
+            if render:
+                t0 = time.perf_counter()
+                rec["images"].append(self._render())
+                t_render += time.perf_counter() - t0
             rec["state"].append(np.asarray(self._arm.qpos, dtype=np.float32))
             rec["time"].append(step / s.control_freq)
             rec["ee_pos"].append(np.asarray(self._tool.entity_pose.p, dtype=np.float32))
@@ -286,7 +296,7 @@ class World:
             rec["contacts"].append(touched_since.astype(np.float32))
             touched_since = np.zeros_like(touched_since)
 
-        record(0)
+        record(0, render=True)
         touched_any = np.zeros_like(touched_since)
         t0 = time.perf_counter()
         i, n = 0, len(schedule)
@@ -312,13 +322,16 @@ class World:
         self._arm.qpos = self.home
         self._arm.qvel = np.zeros(self.kin.dof)
         t_sim += time.perf_counter() - t0
-        record(n)
+        record(n, render=True)
         # action[t]: the joint target in force when frame t + 1 is taken, i.e. sent after observing frame t
         # (LeRobot's convention); after the last frame the arm holds home
         rec["action"] = [schedule[k * per_frame - 1].astype(np.float32) for k in range(1, len(rec["state"]))]
         rec["action"].append(self.home.astype(np.float32))
 
-        frames = Frames(**{k: np.stack(v) for k, v in rec.items()})
+        ends = np.stack(rec.pop("images"))
+        frames = Frames(**{k: np.stack(v) for k, v in rec.items()}, images=None, end_images=ends)
+        if not defer_render:
+            t_render += self.render_frames(frames)
         final = frames.object_poses[-1].astype(np.float64)
         timings.update(sim=t_sim, render=t_render, total=time.perf_counter() - t_start)
         return Rollout(
@@ -333,6 +346,36 @@ class World:
             final_poses=final,
             timings=timings,
         )
+
+    def render_frames(self, frames: Frames) -> float:
+        """Fill in ``frames.images`` of a rollout made with ``defer_render`` (by this World or another): each
+        frame between the first and last is rendered from its recorded joint positions and object poses. Leaves
+        the arm and objects where the last frame recorded them. Returns the seconds spent."""
+        t0 = time.perf_counter()
+        for _ in self.render_frames_stepwise(frames):
+            pass
+        return time.perf_counter() - t0
+
+    def render_frames_stepwise(self, frames: Frames, frames_per_step: int = 4) -> Iterator[None]:
+        """`render_frames` a few frames at a time, pausing (``yield``) after each few: the World may run other
+        rollouts in the pauses, since each frame is rendered from its own recorded state."""
+        if frames.images is not None:
+            return
+        images = [frames.end_images[0]]
+        for t in range(1, len(frames) - 1):
+            self._pose_scene(frames, t)
+            images.append(self._render())
+            if t % frames_per_step == 0:
+                yield
+        images.append(frames.end_images[-1])
+        frames.images, frames.end_images = np.stack(images), None
+        self._pose_scene(frames, len(frames) - 1)
+
+    def _pose_scene(self, frames: Frames, t: int) -> None:
+        """Put the arm and the objects where frame ``t`` recorded them."""
+        self._arm.qpos = frames.state[t]
+        for entity, pose in zip(self._object_entities, frames.object_poses[t], strict=True):
+            entity.set_pose(sapien.Pose(pose[:3], pose[3:]))
 
     def rollout_batch(self, commands: list[Command]) -> list[Rollout]:
         """Several commands, in order (the interface a batched GPU backend would implement at once)."""
