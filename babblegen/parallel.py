@@ -354,9 +354,13 @@ class ProcessEvaluator(PoolEvaluator):
                 with self._arrived:
                     if status == "prepared":
                         attempt, prepared, timings = value
-                        w.owed.pop(attempt, None)
                         if self._unprepared.pop(attempt, None) is not None:  # else already here (taken over)
                             self._prepared[attempt] = (prepared, timings)
+                        w.owed.pop(attempt, None)
+                        for other in self.workers:  # an owner can finish one just handed to another worker
+                            if other is not w and attempt in other.owed:
+                                del other.owed[attempt]
+                                self._tell(other, ("forget", attempt))
                         self._arrived.notify_all()
                     elif status == "ok":
                         if self.prepare is not None and value.feasible:

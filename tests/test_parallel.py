@@ -203,3 +203,31 @@ def test_an_error_in_a_ray_actor_follows_the_same_policy():
         ev.close()
     finally:
         ray.shutdown()
+
+
+def test_an_episode_prepared_by_its_owner_after_it_was_handed_to_an_idle_worker_is_not_handed_on_again():
+    """The coordinator's bookkeeping when two workers race for one preparation: the owner sends it just as the
+    coordinator hands it to an idle worker. Workers here are pipes the test answers for."""
+    import multiprocessing as mp
+    import threading
+
+    from babblegen.parallel import _Worker
+
+    ev = ProcessEvaluator.__new__(ProcessEvaluator)
+    ev._arrived, ev._prepared, ev._handed_over = threading.Condition(), {}, {}
+    ends = [mp.Pipe() for _ in range(3)]
+    ev.workers = [_Worker(process=None, conn=coordinator_end) for coordinator_end, _ in ends]
+    owner, thief, third = ev.workers
+    rollout = "the rollout of attempt 7"
+    owner.owed[7] = None
+    ev._unprepared = {7: rollout}
+
+    ev._share_work(busy={0})  # the owner runs a movement: the idle thief takes its preparation over
+    assert ends[0][1].recv() == ("forget", 7)
+    assert ends[1][1].recv() == ("prepare", 7, rollout) and list(thief.owed) == [7]
+    ends[0][1].send(("prepared", (7, {"n": 1}, {"prepare": 0.1})))  # sent before the owner read its "forget"
+    assert ev._receive(owner) is None
+    assert ev._prepared == {7: ({"n": 1}, {"prepare": 0.1})} and ev._unprepared == {}
+    assert thief.owed == {} and ends[1][1].recv() == ("forget", 7)
+    ev._share_work(busy={1})  # the thief runs a movement now, the third worker is idle: nothing to hand over
+    assert not ends[2][1].poll() and third.owed == {}
