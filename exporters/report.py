@@ -91,6 +91,13 @@ def _wall_time(rows: list[dict[str, Any]]) -> float:
     return total
 
 
+def _worker_seconds(row: dict[str, Any]) -> float:
+    """A worker's seconds on an attempt: the movement as returned (``total``) and the episode's work after it
+    (``prepare``: encoding, and the rendering a worker process defers)."""
+    t = row.get("timings") or {}
+    return float(t.get("total", 0.0)) + float(t.get("prepare", 0.0))
+
+
 def _genome_key(row: dict[str, Any]) -> str:
     return f"{row.get('kind', '')}:{json.dumps(row.get('genome'))}"
 
@@ -174,7 +181,7 @@ def summarize(run: Run) -> dict[str, Any]:
         "final_tool_spread": tool,
         "archive": sum(bool(r.get("archived")) for r in rows),
         "wall_time_s": _wall_time(rows),
-        "rollout_time_s": sum(float((r.get("timings") or {}).get("total", 0.0)) for r in rows),  # all workers
+        "worker_time_s": sum(_worker_seconds(r) for r in rows),  # all workers
         "infeasible_reasons": dict(sorted(reasons.items(), key=lambda kv: -kv[1])),
         "clones": len(run.clones),
         **diversity(rows, run.object_names),
@@ -398,7 +405,7 @@ def markdown(summaries: list[dict[str, Any]], labels: list[str], comparison: dic
     body += row("final tool positions: occupied 2 cm cells", [s["final_tool_spread"]["cells"] for s in summaries])
     body += row("novelty archive size", [s["archive"] for s in summaries])
     body += row("wall time of the generation loop (s, from the timings)", [s["wall_time_s"] for s in summaries])
-    body += row("rollout time, all workers (s)", [s["rollout_time_s"] for s in summaries])
+    body += row("worker time: movements, rendering, encoding (s)", [s["worker_time_s"] for s in summaries])
     text = "# babblegen report\n\n" + head + body
     text += "\n## Infeasible attempts\n\n"
     reasons = sorted({k for s in summaries for k in s["infeasible_reasons"]})
