@@ -61,7 +61,8 @@ def seeded_rollout(
 ) -> Rollout:
     """One rollout whose randomness (IK restarts, planner) depends only on (run_seed, attempt), then
     ``prepare`` (picklable: it travels to worker processes and Ray actors). With ``defer_render`` the frames
-    between the first and last are not rendered yet and nothing is prepared: `render_and_prepare` does both."""
+    between the first and last are not rendered yet and nothing is prepared: `render_and_prepare_stepwise` does
+    both."""
     world.rng = np.random.default_rng([run_seed, attempt])
     rollout = world.rollout(command, defer_render=defer_render)
     if prepare is not None and not defer_render:
@@ -69,16 +70,11 @@ def seeded_rollout(
     return rollout
 
 
-def render_and_prepare(world: World, rollout: Rollout, prepare: Prepare) -> None:
-    """Finish a rollout made with ``defer_render`` (here or by another World): render its frames, then prepare
-    it. Its timings then count all the rendering in ``render``, and all this work in ``prepare``."""
-    for _ in render_and_prepare_stepwise(world, rollout, prepare):
-        pass
-
-
 def render_and_prepare_stepwise(world: World, rollout: Rollout, prepare: Prepare) -> Iterator[None]:
-    """`render_and_prepare`, pausing (``yield``) every few rendered frames: the World may run other rollouts in
-    the pauses (see `World.render_frames_stepwise`); the seconds counted are those spent on this rollout."""
+    """Finish a rollout made with ``defer_render`` (here or by another World): render its frames, pausing
+    (``yield``) every few (the World may run other rollouts in the pauses: `World.render_frames_stepwise`), then
+    prepare it. Its timings then count all the rendering in ``render``, and all this work in ``prepare`` (the
+    seconds spent on this rollout, pauses left out)."""
     if rollout.frames is None:
         return
     rendering, t = 0.0, time.perf_counter()
