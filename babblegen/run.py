@@ -393,16 +393,23 @@ class Run:
             if rollout.feasible:
                 c["executed"] += 1
                 c["contacts"] += int(rollout.touched.any())
-            if bar is not None and self.config.max_attempts is not None:
+            if bar is not None and self._bar_counts_attempts():
                 bar.update(1)
 
+    def _bar_counts_attempts(self) -> bool:
+        """Whether ``max_attempts`` can end the run before its generations do (a generation attempts at most
+        ``population`` movements, fewer when children repeat tried genomes): the progress bar then counts
+        attempts, and generations otherwise (an unreachable attempt count would make it promise hours)."""
+        cfg = self.config
+        return cfg.max_attempts is not None and cfg.max_attempts < cfg.noveb.population * cfg.noveb.generations
+
     def _progress_bar(self, enabled: bool):
-        """Counts attempts when ``max_attempts`` bounds the run, generations otherwise."""
+        """Counts attempts when ``max_attempts`` can end the run first, generations otherwise."""
         if not enabled:
             return None
         from tqdm import tqdm
 
-        if self.config.max_attempts is not None:
+        if self._bar_counts_attempts():
             total, initial, unit = self.config.max_attempts, self.counters["attempts"], "attempt"
         else:
             total, initial, unit = self.config.noveb.generations, self.counters["generations"], "gen"
@@ -411,7 +418,7 @@ class Run:
     def _show(self, bar) -> None:
         if bar is None:
             return
-        if self.config.max_attempts is None:
+        if not self._bar_counts_attempts():
             bar.update(1)
         c = self.counters
         bar.set_postfix(

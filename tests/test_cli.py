@@ -451,3 +451,22 @@ def _spawned_workers(pid: int) -> list[int]:
             if b"spawn_main" in Path(f"/proc/{child}/cmdline").read_bytes():
                 found.append(int(child))
     return found
+
+
+@pytest.mark.parametrize(
+    ("max_attempts", "counts"),
+    [(None, "gen"), (600, "attempt"), (2000 * 12 - 1, "attempt"), (2000 * 12, "gen"), (100_000, "gen")],
+)
+def test_the_progress_bar_counts_what_ends_the_run(tmp_path, max_attempts, counts):
+    """With the defaults (2,000 generations of 12) at most 24,000 movements are attempted: a larger
+    --max-attempts cannot end the run, and a bar counting to it would promise hours too many."""
+    from babblegen.config import RunConfig
+    from babblegen.run import Run
+
+    run = Run.start(tmp_path / "ds", RunConfig(max_attempts=max_attempts))
+    bar = run._progress_bar(enabled=True)
+    try:
+        assert bar.unit == counts
+        assert bar.total == (max_attempts if counts == "attempt" else 2000)
+    finally:
+        bar.close()
