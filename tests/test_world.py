@@ -11,6 +11,7 @@ import sapien
 
 from babblegen.descriptors import PHash
 from babblegen.tasks import get_task
+from babblegen.world.reference import ManiSkillDrivenWorld
 from babblegen.world.rollout import REASONS, Command, Rollout
 from babblegen.world.world import World
 
@@ -290,3 +291,28 @@ def test_infeasible_rollouts_have_no_frames(world, kind, values, reason):
     assert r.frames is None and r.before_image is None and r.after_image is None
     assert r.touched is None and r.displacement is None and r.final_poses is None
     assert "total" in r.timings
+
+
+def test_drive_targets_and_contact_scan_record_what_maniskill_s_controller_does_bit_for_bit(world):
+    assert world._drive_joints is not None, "the tabletop arm's controller is driven directly"
+    reference = ManiSkillDrivenWorld(get_task("noveb_tabletop"), seed=0)
+    try:
+        commands = [waypoints(world, p) for p in (PUSH_THROUGH_CAN, SWEEP_A, SWEEP_B, SWEEP_C, FREE_AIR)]
+        rng = np.random.default_rng(5)
+        commands += [Command("ee_waypoints", rng.uniform(0, 1, (int(rng.integers(1, 3)), 3))) for _ in range(6)]
+        touching = 0
+        for i, command in enumerate(commands):
+            for w in (world, reference):
+                w.rng = np.random.default_rng([3, i])
+            fast, slow = world.rollout(command), reference.rollout(command)
+            assert (fast.feasible, fast.reason) == (slow.feasible, slow.reason)
+            if not fast.feasible:
+                continue
+            touching += bool(slow.touched.any())
+            for name in ("state", "action", "ee_pos", "object_poses", "contacts", "images"):
+                np.testing.assert_array_equal(getattr(fast.frames, name), getattr(slow.frames, name), err_msg=name)
+            np.testing.assert_array_equal(fast.final_poses, slow.final_poses)
+            np.testing.assert_array_equal(fast.touched, slow.touched)
+        assert touching >= 4, "contact-rich movements among them"
+    finally:
+        reference.close()

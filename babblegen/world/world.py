@@ -91,9 +91,46 @@ class World:
         ]
         self._arm = self.agent.robot._objs[0]
         self._tool = next(link for link in self._arm.links if link.entity.name == self.robot.tool_link)
-        self._arm_entity_names = {link.entity.name for link in self._arm.links} - {self.robot.base_link}
-        self._object_index = {e.name: i for i, e in enumerate(self._object_entities)}
+        # contact bodies as the simulator hands them back (one Python object per body): the arm's moving links,
+        # and each object's index
+        self._arm_bodies = {link for link in self._arm.links if link.entity.name != self.robot.base_link}
+        self._object_of_body = {body: i for i, body in enumerate(self._object_bodies)}
+        self._drive_joints = self._position_drives()
         self._camera = self.sim.scene.sensors["head"]
+
+    def _position_drives(self) -> list | None:
+        """The simulator's joints that the agent's joint-position controller drives, in the order of its action,
+        or None if the controller does more than set each joint's drive target to its action (then every
+        control step goes through ManiSkill's controller)."""
+        from mani_skill.agents.controllers import PDJointPosController
+
+        controller = self.agent.controller
+        parts = list(getattr(controller, "controllers", {"": controller}).values())
+        joints = []
+        for part in parts:
+            cfg = getattr(part, "config", None)
+            plain = type(part) is PDJointPosController and not (
+                cfg.interpolate or cfg.use_delta or cfg.normalize_action
+            )
+            if not plain:
+                return None
+            joints += [joint._objs[0] for joint in part.joints]
+        return joints if len(joints) == self.kin.dof else None
+
+    def _drive(self, target: np.ndarray) -> None:
+        """Send one control step's joint targets. With a plain joint-position controller this is what ManiSkill's
+        ``set_action`` does on the CPU backend, minus its tensor bookkeeping: each joint's drive target set to
+        the float32 target (20 us of a 70 us physics substep, for the same simulation, bit for bit:
+        ``tests/test_world.py``); its ``before_simulation_step`` does nothing for such a controller."""
+        if self._drive_joints is None:
+            self.agent.set_action(torch.as_tensor(target, dtype=torch.float32)[None])
+            self.agent.before_simulation_step()
+            return
+        values = np.asarray(target, dtype=np.float32)
+        if np.isnan(values).any():
+            raise ValueError(f"joint targets must not be NaN, got {values}")
+        for joint, value in zip(self._drive_joints, values.tolist(), strict=True):
+            joint.set_drive_target(value)
 
     # --- geometry helpers -------------------------------------------------------------------------------
     def _max_reach(self) -> float:
@@ -213,16 +250,16 @@ class World:
         return self._camera.get_obs(rgb=True, depth=False, segmentation=False, position=False)["rgb"][0].numpy()
 
     def _touching(self) -> np.ndarray:
+        """Which objects the arm touches now: a contact between a moving arm link and the object with a point
+        that pushes (non-zero impulse) or nearly touches (separation under 1 mm)."""
         touched = np.zeros(len(self._object_entities), dtype=bool)
+        arm, object_of = self._arm_bodies, self._object_of_body
         for contact in self.sim.scene.px.get_contacts():
-            a, b = contact.bodies[0].entity.name, contact.bodies[1].entity.name
-            if a in self._arm_entity_names and b in self._object_index:
-                obj = self._object_index[b]
-            elif b in self._arm_entity_names and a in self._object_index:
-                obj = self._object_index[a]
-            else:
+            a, b = contact.bodies
+            obj = object_of.get(b) if a in arm else object_of.get(a) if b in arm else None
+            if obj is None or touched[obj]:
                 continue
-            if any(np.any(p.impulse != 0) or p.separation < 1e-3 for p in contact.points):
+            if any(p.impulse.any() or p.separation < 1e-3 for p in contact.points):
                 touched[obj] = True
         return touched
 
@@ -297,16 +334,18 @@ class World:
             touched_since = np.zeros_like(touched_since)
 
         record(0, render=True)
+        px = self.sim.scene.px
         touched_any = np.zeros_like(touched_since)
         t0 = time.perf_counter()
         i, n = 0, len(schedule)
         while i < n:
             target = schedule[i]
             i += 1
-            self.agent.set_action(torch.as_tensor(target, dtype=torch.float32)[None])
-            for _ in range(substeps):
-                self.agent.before_simulation_step()
-                self.sim.scene.px.step()
+            self._drive(target)
+            for substep in range(substeps):
+                if substep and self._drive_joints is None:
+                    self.agent.before_simulation_step()
+                px.step()
                 touching = self._touching()
                 touched_since |= touching
                 touched_any |= touching
