@@ -139,3 +139,36 @@ def test_the_recorded_codec_is_the_one_asked_for_and_a_resume_cannot_switch_it(d
     other = next(c for c in VIDEO_CODECS if c != codec)
     with pytest.raises(ValueError, match=f"cannot take episodes encoded with {other}"):
         SegmentWriter.reopen(ours.root, "test/segments", other)
+
+
+def test_the_data_table_is_byte_for_byte_the_one_hugging_face_encodes():
+    """The segment writer builds each data parquet's Arrow table from the numpy columns itself: the file must be
+    the one ``datasets.Dataset.from_dict`` with LeRobot's features would have written."""
+    import io
+
+    import datasets as hf_datasets
+    import pyarrow.parquet as pq
+    from lerobot.datasets.feature_utils import get_hf_features_from_features
+
+    from babblegen.exporters.lerobot import arrow_table
+    from babblegen.exporters.lerobot_encoding import with_default_features
+
+    hf = get_hf_features_from_features(with_default_features(features(JOINTS, OBJECTS, SIDE, SIDE)))
+    rng = np.random.default_rng(3)
+    n = 257
+    columns = {
+        key: rng.normal(size=(n, f.length)).astype(np.float32)
+        if isinstance(f, hf_datasets.List)
+        else (rng.normal(size=n).astype(np.float32) if f.dtype == "float32" else rng.integers(0, 10**9, n))
+        for key, f in hf.items()
+    }
+    expected = hf_datasets.Dataset.from_dict(columns, features=hf, split="train").with_format("arrow")[:]
+    got = arrow_table(columns, hf)
+    files = []
+    for table in (expected, got):
+        buf = io.BytesIO()
+        pq.write_table(table, buf, compression="snappy", use_dictionary=True)
+        files.append(buf.getvalue())
+    assert files[0] == files[1]
+    images = hf_datasets.Features({"x": hf_datasets.Image()})
+    assert arrow_table({"x": np.zeros((2, 4, 4, 3), np.uint8)}, images) is None  # left to Hugging Face
