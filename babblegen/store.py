@@ -10,10 +10,13 @@ after that commit point, however the process ended.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import sys
+import threading
 import time
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -141,6 +144,85 @@ class RunStore:
             f"to ({'; '.join(problems)}); the episodes written so far still load with LeRobot"
         )
 
+    # --- writing in the background ------------------------------------------------------------------------
+    def start_writer(self) -> None:
+        """From now on `write`, `write_clones` and `commit` hand their work to a writer thread and return: the
+        run loop goes on asking and telling while a commit point writes its files (a segment's video, tables and
+        recording take about a second, which 32 workers would otherwise spend waiting for the next generation).
+        The work is done in the order handed over; at most one commit point waits behind the one being written
+        (the caller waits for room); an error in the writer is raised by the next call, and by `close`."""
+        self._work: deque[tuple] = deque()
+        self._commits_waiting = 0
+        self._writer_error: BaseException | None = None
+        self._handed = threading.Condition()
+        self._writer = threading.Thread(target=self._write_in_background, name="dataset-writer", daemon=True)
+        self._writer.start()
+
+    def _hand_over(self, job: tuple) -> None:
+        with self._handed:
+            self._raise_writer_error()
+            if job[0] == "commit":
+                while self._commits_waiting >= 2 and self._writer_error is None:
+                    self._handed.wait(0.2)  # short waits: a Ctrl-C is not held up
+                self._raise_writer_error()
+                self._commits_waiting += 1
+            self._work.append(job)
+            self._handed.notify_all()
+
+    def _raise_writer_error(self) -> None:
+        if self._writer_error is not None:
+            error, self._writer_error = self._writer_error, None
+            self._writer_failed = True
+            raise error
+
+    def wait_written(self) -> None:
+        """Wait until everything handed over is written (raises the writer's error, if any)."""
+        if getattr(self, "_writer", None) is None:
+            return
+        with self._handed:
+            while (self._work or self._busy) and self._writer_error is None:
+                self._handed.wait(0.2)
+            self._raise_writer_error()
+
+    _busy = False
+    _writer_failed = False
+
+    def _write_in_background(self) -> None:
+        while True:
+            with self._handed:
+                while not self._work:
+                    self._handed.wait()
+                job = self._work.popleft()
+                if job[0] == "stop":
+                    return
+                self._busy = True
+            try:
+                getattr(self, f"_{job[0]}_now")(*job[1:])
+            except BaseException as e:
+                with self._handed:
+                    self._writer_error = e
+                    self._work.clear()
+                    self._commits_waiting = 0
+            finally:
+                with self._handed:
+                    self._busy = False
+                    if job[0] == "commit":
+                        self._commits_waiting = max(0, self._commits_waiting - 1)
+                    self._handed.notify_all()
+
+    def _stop_writer(self) -> None:
+        """Let the writer finish what it was handed, then end it; raises its error, if any."""
+        if getattr(self, "_writer", None) is None:
+            return
+        try:
+            self.wait_written()
+        finally:
+            with self._handed:
+                self._work.append(("stop",))
+                self._handed.notify_all()
+            self._writer.join()
+            self._writer = None
+
     # --- sinks ----------------------------------------------------------------------------------------------
     def open_sinks(self, makers: list[tuple[str, SinkMaker]], states: dict[str, Any] | None = None) -> None:
         """Build each sink from its committed state (``states`` from a checkpoint; ``None`` for a new run)."""
@@ -148,17 +230,35 @@ class RunStore:
             self.sinks.append(make(None if states is None else states.get(name)))
 
     def write(self, record: AttemptRecord) -> None:
+        if getattr(self, "_writer", None) is not None:
+            return self._hand_over(("write", record))
+        self._write_now(record)
+
+    def _write_now(self, record: AttemptRecord) -> None:
         for sink in self.sinks:
             t = time.perf_counter()
             sink.write(record)
             self.seconds[sink.name] = self.seconds.get(sink.name, 0.0) + time.perf_counter() - t
 
     def write_clones(self, rows: list[dict[str, Any]]) -> None:
+        if getattr(self, "_writer", None) is not None:
+            return self._hand_over(("write_clones", rows))
+        self._write_clones_now(rows)
+
+    def _write_clones_now(self, rows: list[dict[str, Any]]) -> None:
         for sink in self.sinks:
             sink.write_clones(rows)
 
     def commit(self, explorer_state: dict[str, Any], counters: dict[str, int], final: bool = False) -> None:
-        """A commit point: every sink made durable, then one checkpoint naming all their states."""
+        """A commit point: every sink made durable, then one checkpoint naming all their states. With the writer
+        started, ``explorer_state`` must be a snapshot (``state_dict`` makes one); a final commit is waited for."""
+        if getattr(self, "_writer", None) is None:
+            return self._commit_now(explorer_state, dict(counters), final)
+        self._hand_over(("commit", explorer_state, dict(counters), final))
+        if final:
+            self.wait_written()
+
+    def _commit_now(self, explorer_state: dict[str, Any], counters: dict[str, int], final: bool) -> None:
         from babblegen.state_file import dumps
 
         states = {}
@@ -179,10 +279,25 @@ class RunStore:
         atomic_write(self.dir / CHECKPOINT, data)
 
     def close(self) -> None:
-        """Close every sink (whatever happened, what is written loads) and release the lock."""
-        for sink in self.sinks:
-            sink.close()
-        self.lock.release()
+        """Write what was handed over, close every sink (whatever happened, what is written loads) and release the
+        lock; then raise the writer's error, if it had one nobody was told of yet."""
+        error = None
+        try:
+            self._stop_writer()
+        except BaseException as e:
+            error = e
+        try:
+            if not self._writer_failed and error is None:
+                for sink in self.sinks:
+                    sink.close()
+            else:  # after a failed write the sinks may not close cleanly: each is closed as far as it can be
+                for sink in self.sinks:
+                    with contextlib.suppress(Exception):
+                        sink.close()
+        finally:
+            self.lock.release()
+        if error is not None:
+            raise error
 
 
 def _upgrade(ckpt: dict[str, Any]) -> dict[str, Any]:

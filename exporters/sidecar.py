@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import os
+import time
 from pathlib import Path
 from typing import Any
 
@@ -86,6 +87,7 @@ class SidecarSink(Sink):
         self.clones = AttemptLog(sdir / CLONES)
 
     def write(self, record: AttemptRecord) -> None:
+        record.row["timings"]["written_at"] = round(time.time(), 3)  # after its episode went to the dataset
         self.attempts.append(record.row)
 
     def write_clones(self, rows: list[dict[str, Any]]) -> None:

@@ -100,3 +100,64 @@ def test_a_format_1_checkpoint_still_resumes(tmp_path):
         "rerun": {"episodes": 7},
     }
     np.testing.assert_array_equal(ckpt["explorer"]["x"], np.arange(3))
+
+
+class SlowSink(ListSink):
+    """A sink whose commits take a while (a segment's files) and that can be told to fail on an attempt."""
+
+    def __init__(self, *args, commit_seconds: float = 0.0, fail_on: int | None = None):
+        super().__init__(*args)
+        self.commit_seconds, self.fail_on, self.threads = commit_seconds, fail_on, set()
+
+    def write(self, record: AttemptRecord) -> None:
+        import threading
+
+        self.threads.add(threading.current_thread().name)
+        if record.row["attempt"] == self.fail_on:
+            raise OSError(28, "No space left on device")
+        super().write(record)
+
+    def commit(self, counters: dict[str, int], final: bool = False) -> dict:
+        import time
+
+        time.sleep(self.commit_seconds)
+        return super().commit(counters, final)
+
+
+def test_the_writer_thread_writes_in_order_while_the_caller_goes_on(tmp_path):
+    import time
+
+    store = RunStore(tmp_path)
+    store.write_info({"config": {}})
+    sink = SlowSink(None, tmp_path / "a.txt", "a", commit_seconds=0.5)
+    store.open_sinks([("a", lambda state: sink)])
+    store.start_writer()
+    t = time.perf_counter()
+    for segment in range(3):
+        write(store, range(10 * segment, 10 * segment + 10))
+        store.commit({"segment": segment}, {"attempts": 10 * segment + 10})
+    handed_over = time.perf_counter() - t
+    assert handed_over < 0.9, "two commit points may wait behind the one being written: the caller went on"
+    store.commit({"segment": 3}, {"attempts": 30}, final=True)  # waited for
+    assert time.perf_counter() - t >= 4 * 0.5
+    store.close()
+    assert sink.threads == {"dataset-writer"}
+    assert (tmp_path / "a.txt").read_text().split() == [str(i) for i in range(30)]
+    ckpt = RunStore(tmp_path).read_checkpoint(warn=pytest.fail)
+    assert ckpt["explorer"] == {"segment": 3} and ckpt["sinks"]["a"] == {"rows": 30}
+
+
+def test_an_error_in_the_writer_thread_reaches_the_caller_and_the_last_commit_point_stays(tmp_path):
+    store = RunStore(tmp_path)
+    store.write_info({"config": {}})
+    store.open_sinks([("a", lambda state: SlowSink(state, tmp_path / "a.txt", "a", fail_on=13))])
+    store.start_writer()
+    write(store, range(10))
+    store.commit({"segment": 0}, {"attempts": 10})
+    with pytest.raises(OSError, match="No space left"):
+        for i in range(10, 1000):
+            store.write(AttemptRecord({"attempt": i}, None))
+            store.wait_written() if i == 999 else None
+    store.close()
+    ckpt = RunStore(tmp_path).read_checkpoint(warn=pytest.fail)
+    assert ckpt["explorer"] == {"segment": 0} and ckpt["sinks"]["a"] == {"rows": 10}
