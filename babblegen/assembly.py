@@ -29,16 +29,17 @@ def build_explorer(config: RunConfig, arm: dict[str, Any], overrides: dict[str, 
     )
 
 
-def build_evaluator(task: Any, config: RunConfig, prepare=None):
+def build_evaluator(task: Any, config: RunConfig, prepare=None, describe=None):
     """One world in this process, or a pool of worker processes or Ray actors (``workers``, ``ray``);
-    ``prepare`` runs on each rollout where it ran (:data:`babblegen.evaluation.Prepare`)."""
+    ``describe`` (the behaviour descriptor) and ``prepare`` run on each rollout where it ran
+    (:data:`babblegen.evaluation.Describe`, :data:`babblegen.evaluation.Prepare`)."""
     if config.workers > 1 or config.ray:
         from babblegen.parallel import make_parallel_evaluator
 
-        return make_parallel_evaluator(task, config, prepare)
+        return make_parallel_evaluator(task, config, prepare, describe)
     from babblegen.evaluation import LocalEvaluator
 
-    return LocalEvaluator(task, config.world, config.seed, prepare=prepare)
+    return LocalEvaluator(task, config.world, config.seed, prepare=prepare, describe=describe)
 
 
 def build_descriptor(config: RunConfig, overrides: dict[str, Any] | None = None):

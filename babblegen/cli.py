@@ -74,7 +74,7 @@ def build_parser() -> argparse.ArgumentParser:
         type=_positive("--max-attempts"),
         default=None,
         help="stop after this many attempted movements (clones, children that repeat a tried genome, reuse its "
-        "outcome and do not count) [default: all generations]",
+        f"outcome and do not count); 0: when the generations end [default: {RunConfig.max_attempts}]",
     )
     g.add_argument(
         "--descriptor",
@@ -83,7 +83,23 @@ def build_parser() -> argparse.ArgumentParser:
         help=f"behaviour descriptor of the outcome image [default: {RunConfig.descriptor}; phash is the paper's]",
     )
     g.add_argument(
-        "--population", type=int, default=None, help=f"individuals per generation [default: {_N.population}]"
+        "--population",
+        type=int,
+        default=None,
+        help=f"parents kept per generation (the first generation's size) [default: {_N.population}]",
+    )
+    g.add_argument(
+        "--children",
+        type=_positive("--children"),
+        default=None,
+        help=f"children bred per generation from the population's survivors [default: {_N.children}]",
+    )
+    g.add_argument(
+        "--lag",
+        type=_positive("--lag"),
+        default=None,
+        help="generations bred before the one before is told: lag + 1 generations' movements can run at once, "
+        f"for any number of workers (0: the paper's generations) [default: {_N.lag}]",
     )
     g.add_argument("--k", type=int, default=None, help=f"nearest neighbours for novelty [default: {_N.k}]")
     g.add_argument("--mutation-prob", type=_prob, default=None, help=f"[default: {_N.mutation_prob}]")
@@ -161,6 +177,8 @@ def _overrides(args: argparse.Namespace) -> dict:
         "noveb": {
             "generations": args.generations,
             "population": args.population,
+            "children": args.children,
+            "lag": args.lag,
             "k": args.k,
             "mutation_prob": args.mutation_prob,
             "sigma": args.sigma,
@@ -170,8 +188,21 @@ def _overrides(args: argparse.Namespace) -> dict:
     }
 
 
+def _one_line_warnings() -> None:
+    """Warnings as one line each, like the errors (``babblegen: warning: ...``), not Python's two with the source
+    line that raised them."""
+    import warnings
+
+    def show(message, category, filename, lineno, file=None, line=None) -> None:
+        print(f"babblegen: warning: {message}", file=file or sys.stderr)
+
+    warnings.showwarning = show
+
+
 def cmd_generate(args: argparse.Namespace) -> int:
     from babblegen.run import Run
+
+    _one_line_warnings()
 
     if args.resume:
         if args.config is not None:

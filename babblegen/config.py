@@ -11,7 +11,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
-from babblegen.explorers.noveb import NovEBConfig
+from babblegen.explorers.noveb import NovEBConfig, upgrade_stored_config
 from babblegen.world.settings import WorldSettings
 
 # The head camera's video codecs (settings: babblegen.exporters.lerobot_encoding.video_encoder). H.264 is the
@@ -29,7 +29,9 @@ class RunConfig:
     task: str = "noveb_tabletop"
     explorer: str = "noveb"  # "noveb" or "random"
     seed: int = 0
-    max_attempts: int | None = None  # stop after this many attempted movements (default: all generations)
+    # stop after this many attempted movements (None, or 0 in a file or flag: when the generations end); the
+    # default is about what the paper's 2,000 generations of 12 attempt once repeated genomes are reused
+    max_attempts: int | None = 8000
     descriptor: str = "phash16"  # 256-bit pHash of the full head image (the paper: 64-bit "phash")
     checkpoint_every: int = 10  # generations between commit points (crash-safe resume granularity)
     workers: int = field(default_factory=lambda: default_workers())  # rollout processes: one per core
@@ -89,8 +91,10 @@ class RunConfig:
                 f"k ({n.k}) must be below the population ({n.population}): the first generation has no archive, "
                 "so each individual has only population - 1 neighbours"
             )
+        if self.max_attempts == 0:
+            self.max_attempts = None  # no limit: the generations end the run
         if self.max_attempts is not None and self.max_attempts < 1:
-            raise ConfigError(f"max_attempts must be at least 1, got {self.max_attempts}")
+            raise ConfigError(f"max_attempts must be at least 1 (or 0: no limit), got {self.max_attempts}")
         if self.seed < 0:
             raise ConfigError(f"seed must be non-negative, got {self.seed}")
         if self.checkpoint_every < 1:
@@ -110,6 +114,7 @@ def resumed_config(stored: dict[str, Any], overrides: dict[str, Any] | None = No
     of setting names from any section. Changing anything that would change the results is refused."""
     data = json.loads(json.dumps(stored))  # a deep copy
     data.setdefault("video_codec", "libsvtav1")  # runs stored before the setting existed recorded AV1
+    data["noveb"] = upgrade_stored_config(data.get("noveb", {}))
     for key, value in (overrides or {}).items():
         if value is None:
             continue

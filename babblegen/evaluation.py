@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import time
 from abc import ABC, abstractmethod
+from collections import deque
 from collections.abc import Callable, Iterator
 from typing import Any
 
@@ -18,6 +19,7 @@ from babblegen.world.rollout import Command, Rollout
 from babblegen.world.world import World, WorldSettings
 
 Prepare = Callable[[Rollout], None]  # work done on a rollout where it ran (see `Preparers`)
+Describe = Callable[[np.ndarray], np.ndarray]  # the behaviour descriptor: after image -> packed bit code
 
 
 class Preparers:
@@ -58,13 +60,19 @@ def seeded_rollout(
     attempt: int,
     prepare: Prepare | None = None,
     defer_render: bool = False,
+    describe: Describe | None = None,
 ) -> Rollout:
-    """One rollout whose randomness (IK restarts, planner) depends only on (run_seed, attempt), then
-    ``prepare`` (picklable: it travels to worker processes and Ray actors). With ``defer_render`` the frames
-    between the first and last are not rendered yet and nothing is prepared: `render_and_prepare_stepwise` does
-    both."""
+    """One rollout whose randomness (IK restarts, planner) depends only on (run_seed, attempt), its behaviour
+    code (``describe`` of the after image, in ``rollout.code``: the search needs it, so it is made with the
+    movement), then ``prepare`` (both picklable: they travel to worker processes and Ray actors). With
+    ``defer_render`` the frames between the first and last are not rendered yet and nothing is prepared:
+    `render_and_prepare_stepwise` does both."""
     world.rng = np.random.default_rng([run_seed, attempt])
     rollout = world.rollout(command, defer_render=defer_render)
+    if describe is not None and rollout.feasible:
+        t = time.perf_counter()
+        rollout.code = describe(rollout.after_image)
+        rollout.timings["descriptor"] = time.perf_counter() - t
     if prepare is not None and not defer_render:
         prepare(rollout)
     return rollout
@@ -103,18 +111,21 @@ def arm_info(task: TaskSpec) -> dict:
 class Evaluator(ABC):
     """Runs batches of commands and returns their rollouts in the same order.
 
-    `submit` then `collect` lets the caller work (write episodes) while a batch runs; `evaluate` does both.
+    `submit` then `collect` lets the caller work (write episodes, ask for more) while batches run: several may be
+    submitted, and `collect` returns the oldest one not collected yet. `evaluate` does both for one batch.
     """
 
     failures: int = 0  # workers replaced after dying or timing out
 
     def submit(self, commands: list[Command], attempts: list[int]) -> None:
-        self._batch = (commands, attempts)
+        if not hasattr(self, "_submitted"):
+            self._submitted: deque[tuple[list[Command], list[int]]] = deque()
+        self._submitted.append((list(commands), list(attempts)))
 
     def collect(self) -> list[Rollout]:
-        commands, attempts = self._batch
-        self._batch = None
-        return self.evaluate(commands, attempts)
+        if not getattr(self, "_submitted", None):
+            raise RuntimeError("nothing submitted")
+        return self.evaluate(*self._submitted.popleft())
 
     @abstractmethod
     def evaluate(self, commands: list[Command], attempts: list[int]) -> list[Rollout]: ...
@@ -143,14 +154,15 @@ class LocalEvaluator(Evaluator):
         run_seed: int,
         world: World | None = None,
         prepare: Prepare | None = None,
+        describe: Describe | None = None,
     ):
         self.world = world or World(task, settings, seed=run_seed)
-        self.run_seed, self.prepare = run_seed, prepare
+        self.run_seed, self.prepare, self.describe = run_seed, prepare, describe
         warm_up(self.world, prepare)
 
     def evaluate(self, commands: list[Command], attempts: list[int]) -> list[Rollout]:
         return [
-            seeded_rollout(self.world, c, self.run_seed, a, self.prepare)
+            seeded_rollout(self.world, c, self.run_seed, a, self.prepare, describe=self.describe)
             for c, a in zip(commands, attempts, strict=True)
         ]
 

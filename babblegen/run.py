@@ -91,6 +91,11 @@ def check_output(out: Path, resume: bool) -> None:
     if resume:
         if not out.exists():
             raise ConfigError(f"--resume: {out} does not exist")
+        if out.is_dir() and not any(p for p in out.iterdir() if p.name != ".babblegen-write-test"):
+            raise ConfigError(
+                f"--resume: nothing was written to {out} yet (the run stopped while it was starting); run the same "
+                "command without --resume"
+            )
         if not is_babblegen_dataset(out):
             raise ConfigError(f"--resume: {out} is not a babblegen dataset (no {sidecar_dir(out) / RUN_INFO})")
         if not os.access(out, os.W_OK):
@@ -158,7 +163,7 @@ class Run:
         self.joint_names = list(arm["joints"])
         self.descriptor = build_descriptor(cfg)
         self.explorer = build_explorer(cfg, arm)
-        self.evaluator = build_evaluator(self.task, cfg, prepare=self._preparers())
+        self.evaluator = build_evaluator(self.task, cfg, prepare=self._preparers(), describe=self.descriptor)
         self.task_text = f"{cfg.explorer} babbling in {cfg.task}"
         try:  # while worker processes start (seconds), import what the sinks need here
             self._import_sink_libraries()
@@ -173,6 +178,8 @@ class Run:
 
         import_lerobot()
         if self.config.rerun:
+            # before Rerun's logger starts: the sink reports its own failures, in one line (`RerunSink`)
+            os.environ.setdefault("RUST_LOG", "off")
             import rerun  # noqa: F401
             import rerun.blueprint  # noqa: F401
 
@@ -279,6 +286,7 @@ class Run:
             self._build_parts(starting.check)
             try:
                 self._open_resumed(echo) if self.resumed else self._open_new()
+                self.store.start_writer()  # commit points are written while the search goes on
                 starting.check()
             except BaseException:
                 self.evaluator.close()
@@ -298,8 +306,10 @@ class Run:
                 with self._interrupts.closing():
                     if bar is not None:
                         bar.close()
-                    self.store.close()
-                    self.evaluator.close()
+                    try:
+                        self.store.close()
+                    finally:  # also when closing the store fails (a full disk): the workers are stopped
+                        self.evaluator.close()
         c = self.counters
         return RunSummary(
             self.out,
@@ -322,41 +332,47 @@ class Run:
             return True
         return cfg.max_attempts is not None and self.explorer.attempts_asked >= cfg.max_attempts
 
-    def _ask_and_submit(self):
-        left = None if self.config.max_attempts is None else self.config.max_attempts - self.explorer.attempts_asked
-        candidates = self.explorer.ask(max_new=left)
-        self.evaluator.submit([command_for(c) for c in candidates], [c.index for c in candidates])
-        return candidates
+    def _submit(self, batches: list[list]) -> list[list]:
+        for candidates in batches:
+            self.evaluator.submit([command_for(c) for c in candidates], [c.index for c in candidates])
+        return batches
 
     def _loop(self, bar) -> None:
-        """ask -> rollout -> describe -> tell -> write, one generation at a time. The next generation is
-        submitted before this one is written, so workers simulate while the writer writes. An attempt is written
-        once its episode is prepared (workers prepare episodes when they have no movement to simulate), in
-        attempt order; at a commit point, every attempt told so far is."""
-        if self._finished() and not self.explorer.batch_open:
-            return
+        """ask -> rollout -> describe -> tell -> write, one generation at a time, with every generation the
+        explorer lets overlap (NovEB's ``lag``) asked and running meanwhile: after each tell, the explorer is asked
+        for all it allows (`ask_while_possible`), so what is asked depends on the order of tells alone, never on
+        timing. Generations are told in the order asked. An attempt is written once its episode is prepared
+        (workers prepare episodes when they have no movement to simulate), in attempt order; at a commit point,
+        every attempt told so far is."""
+        from babblegen.explorers.base import ask_while_possible
+
+        limit, generations = self.config.max_attempts, self.config.noveb.generations
+        open_batches = deque(self._submit(self.explorer.open_batches()))  # in flight at the commit point resumed
+        if not self._finished():
+            open_batches.extend(self._submit(ask_while_possible(self.explorer, limit, generations)))
         unwritten: deque[tuple] = deque()  # told attempts, in order, waiting for their episode's preparation
-        candidates = self._ask_and_submit()
-        while candidates is not None:
+        while open_batches:
+            candidates = open_batches.popleft()
             t = time.perf_counter()
             rollouts = self.evaluator.collect()
             waited = time.perf_counter() - t
             codes, describe_s = self._describe(rollouts)
             evaluations = self.explorer.tell(candidates, codes)
             clones = self.explorer.last_clones
-            following = None if self._finished() else self._ask_and_submit()
+            if not self._finished():
+                open_batches.extend(self._submit(ask_while_possible(self.explorer, limit, generations)))
             for record in zip(candidates, rollouts, codes, evaluations, describe_s, strict=True):
                 unwritten.append((*record, waited))
-            commit = following is None or (self.counters["generations"] + 1) % self.config.checkpoint_every == 0
+            last = not open_batches
+            commit = last or (self.counters["generations"] + 1) % self.config.checkpoint_every == 0
             self._write_prepared(unwritten, bar, wait=commit)
             with self._interrupts.protected():
                 self.store.write_clones([clone_row(c) for c in clones])
                 self.counters["clones"] += len(clones)
                 self.counters["generations"] += 1
-                if commit and following is not None:
+                if commit and not last:
                     self.store.commit(self.explorer.state_dict(), self.counters)
             self._show(bar)
-            candidates = following
 
     def _write_prepared(self, unwritten: deque, bar, wait: bool) -> None:
         """Write the attempts at the front of ``unwritten`` whose episodes are prepared (``wait``: all of them)."""
@@ -367,11 +383,15 @@ class Run:
             self._write_attempt(*unwritten.popleft(), bar)
 
     def _describe(self, rollouts) -> tuple[list, list[float]]:
+        """Each rollout's behaviour code (made where it ran; here for an evaluator that did not) and its seconds."""
         codes, seconds = [], []
         for r in rollouts:
-            t = time.perf_counter()
-            codes.append(self.descriptor(r.after_image) if r.feasible else None)
-            seconds.append(time.perf_counter() - t)
+            if r.feasible and r.code is None:
+                t = time.perf_counter()
+                r.code = self.descriptor(r.after_image)
+                r.timings["descriptor"] = time.perf_counter() - t
+            codes.append(r.code if r.feasible else None)
+            seconds.append(r.timings.pop("descriptor", 0.0))
         return codes, seconds
 
     def _write_attempt(self, cand, rollout, code, evaluation, describe_s: float, waited: float, bar) -> None:
@@ -385,7 +405,6 @@ class Run:
             )
             row["timings"] = {k: round(v, 5) for k, v in rollout.timings.items()}
             row["timings"].update(descriptor=round(describe_s, 5), write=0.0, wait_for_batch=round(waited, 5))
-            row["timings"]["written_at"] = round(time.time(), 3)
             row["worker_failures"] = failures
             self.store.write(AttemptRecord(row, rollout))
             c["worker_failures"] += failures
@@ -398,10 +417,14 @@ class Run:
 
     def _bar_counts_attempts(self) -> bool:
         """Whether ``max_attempts`` can end the run before its generations do (a generation attempts at most
-        ``population`` movements, fewer when children repeat tried genomes): the progress bar then counts
-        attempts, and generations otherwise (an unreachable attempt count would make it promise hours)."""
+        ``children`` movements, or ``population``, fewer when children repeat tried genomes): the progress bar
+        then counts attempts, and generations otherwise (an unreachable attempt count would make it promise
+        hours)."""
         cfg = self.config
-        return cfg.max_attempts is not None and cfg.max_attempts < cfg.noveb.population * cfg.noveb.generations
+        per_generation = cfg.noveb.population
+        if cfg.explorer == "noveb":
+            per_generation = max(per_generation, cfg.noveb.children)
+        return cfg.max_attempts is not None and cfg.max_attempts < per_generation * cfg.noveb.generations
 
     def _progress_bar(self, enabled: bool):
         """Counts attempts when ``max_attempts`` can end the run first, generations otherwise."""

@@ -141,6 +141,16 @@ def test_resume_refuses_a_directory_that_is_not_a_babblegen_dataset(tmp_path, ca
     assert (other / "notes.txt").read_text() == "keep me" and len(list(other.iterdir())) == 1
 
 
+def test_resume_of_a_run_that_stopped_while_starting_says_to_run_it_without_resume(tmp_path, capsys):
+    """A run stopped during its start-up leaves the empty folder it checked it could write to."""
+    out = tmp_path / "started"
+    out.mkdir()
+    assert main(["generate", "--out", str(out), "--resume"]) == 2
+    err = capsys.readouterr().err
+    assert f"nothing was written to {out} yet" in err and "without --resume" in err, err
+    assert list(out.iterdir()) == []
+
+
 @pytest.mark.parametrize(
     ("flags", "message"),
     [
@@ -344,7 +354,10 @@ def test_resume_extends_a_run(small_run, tmp_path, capsys):
 
 
 @pytest.mark.sim
-def test_a_full_disk_stops_with_one_clear_line_and_resume_completes(tmp_path):
+@pytest.mark.parametrize("workers", ["1", "2"])
+def test_a_full_disk_stops_with_one_clear_line_and_resume_completes(tmp_path, workers):
+    """With worker processes too: they go without a traceback or the bindings' leak report, and the Rerun
+    recording's failure is one warning line, not the SDK's own log."""
     disk = tmp_path / "disk"
     disk.mkdir()
     mounted = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=768k", "tmpfs", str(disk)], capture_output=True)
@@ -353,10 +366,13 @@ def test_a_full_disk_stops_with_one_clear_line_and_resume_completes(tmp_path):
     try:
         out = disk / "ds"
         cmd = [sys.executable, "-m", "babblegen.cli", "generate", "--out", str(out), "--max-attempts", "60"]
-        cmd += ["--workers", "1", "--checkpoint-every", "1", "--no-progress", "--no-rerun"]
+        cmd += ["--workers", workers, "--checkpoint-every", "1", "--no-progress"]
+        cmd += ["--no-rerun"] if workers == "1" else []
         proc = subprocess.run(cmd, capture_output=True, text=True, timeout=900)
         assert proc.returncode == 1, proc.stdout + proc.stderr
-        assert "Traceback" not in proc.stderr, proc.stderr
+        printed = proc.stdout + proc.stderr
+        assert "Traceback" not in printed and "leaked" not in printed, printed
+        assert all(line.startswith("babblegen: ") for line in proc.stderr.splitlines()), proc.stderr
         assert (
             proc.stderr.strip()
             .splitlines()[-1]
@@ -421,6 +437,23 @@ def test_a_resumed_run_keeps_its_video_codec():
     assert resumed_config(stored).video_codec == "libsvtav1"
 
 
+def test_a_run_stored_by_the_generational_version_resumes_as_the_same_search():
+    """Runs made before the number of children was a setting stored ``keep_fraction`` (and knew no lag): they
+    resume with the children that meant, not with today's defaults."""
+    stored = RunConfig().to_dict()
+    for key in ("children", "lag"):
+        del stored["noveb"][key]
+    stored["noveb"]["keep_fraction"] = 0.5
+    stored["max_attempts"] = None  # "all generations", the default then
+    config = resumed_config(stored)
+    assert (config.noveb.population, config.noveb.children, config.noveb.lag) == (12, 12, 0)
+    assert config.max_attempts is None
+    assert RunConfig().max_attempts == 8000 and RunConfig(max_attempts=0).max_attempts == 0
+    zero = RunConfig(max_attempts=0)
+    zero.validate()
+    assert zero.max_attempts is None, "0 means no limit"
+
+
 @pytest.mark.sim
 def test_ctrl_c_while_a_run_starts_exits_130_with_one_line(tmp_path):
     """Ctrl-C during the seconds of start-up (imports, workers warming up) stops at once, without a traceback."""
@@ -455,11 +488,12 @@ def _spawned_workers(pid: int) -> list[int]:
 
 @pytest.mark.parametrize(
     ("max_attempts", "counts"),
-    [(None, "gen"), (600, "attempt"), (2000 * 12 - 1, "attempt"), (2000 * 12, "gen"), (100_000, "gen")],
+    [(0, "gen"), (600, "attempt"), (2000 * 128 - 1, "attempt"), (2000 * 128, "gen"), (10**6, "gen")],
 )
 def test_the_progress_bar_counts_what_ends_the_run(tmp_path, max_attempts, counts):
-    """With the defaults (2,000 generations of 12) at most 24,000 movements are attempted: a larger
-    --max-attempts cannot end the run, and a bar counting to it would promise hours too many."""
+    """With the default generations (2,000 of at most 128 new movements) at most 256,000 movements are
+    attempted: a larger --max-attempts cannot end the run, and a bar counting to it would promise days too many
+    (0: no limit, the generations end the run)."""
     from babblegen.config import RunConfig
     from babblegen.run import Run
 
@@ -470,3 +504,31 @@ def test_the_progress_bar_counts_what_ends_the_run(tmp_path, max_attempts, count
         assert bar.total == (max_attempts if counts == "attempt" else 2000)
     finally:
         bar.close()
+
+
+@pytest.mark.sim
+def test_an_error_in_the_coordinator_stops_the_workers_without_their_tracebacks(tmp_path):
+    """A bug in the main process shows its own traceback once; the worker processes go quietly (no
+    EOFError or ConnectionResetError from their pipes, no leak report) and the dataset still loads."""
+    out = tmp_path / "bug"
+    script = (
+        "import sys\n"
+        "from babblegen import run\n"
+        "original = run.Run._write_attempt\n"
+        "def failing(self, cand, *args):\n"
+        "    if cand.index == 20:\n"
+        "        raise RuntimeError('a bug in the coordinator')\n"
+        "    return original(self, cand, *args)\n"
+        "run.Run._write_attempt = failing\n"
+        "from babblegen.cli import entry_point\n"
+        f"sys.argv = ['babblegen', 'generate', '--out', {str(out)!r}, '--workers', '2', '--max-attempts', '60',\n"
+        "            '--checkpoint-every', '1', '--width', '64', '--height', '64', '--no-progress']\n"
+        "entry_point()\n"
+    )
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=600)
+    printed = proc.stdout + proc.stderr
+    assert proc.returncode != 0
+    assert printed.count("Traceback") == 1 and "a bug in the coordinator" in printed, printed
+    assert "EOFError" not in printed and "ConnectionResetError" not in printed and "leaked" not in printed, printed
+    ds = load_dataset(out, read_run_info(out)["repo_id"])
+    assert ds.meta.total_episodes == sum(r["feasible"] for r in read_attempts(out)) > 0

@@ -46,24 +46,29 @@ def run_rounds(explorer, rounds: int):
 
 
 def make_noveb(seed: int = 7, **cfg) -> NovEB:
-    return make_explorer("noveb", cfg or None, seed, PR2_LIMITS, START)
+    """NovEB with the paper's 12 children per generation unless told otherwise."""
+    return make_explorer("noveb", {"children": 12, **cfg}, seed, PR2_LIMITS, START)
 
 
 def test_registry_and_config_defaults():
     assert {"noveb": NovEB, "random": RandomBabbling} == EXPLORERS
     cfg = NovEBConfig()
-    assert (cfg.population, cfg.generations, cfg.k, cfg.keep_fraction) == (12, 2000, 3, 0.5)
+    assert (cfg.population, cfg.generations, cfg.k) == (12, 2000, 3)
     assert (cfg.mutation_prob, cfg.sigma, cfg.extend_prob, cfg.crossover_prob) == (0.3, 0.3, 0.05, 0.0)
-    assert cfg.n_children == 12
-    assert NovEBConfig(population=10, keep_fraction=0.25).n_children == 30
+    assert (cfg.children, cfg.lag) == (128, 0), "many children of few parents, generations not overlapping"
+    ex = make_explorer("noveb", None, 0, PR2_LIMITS, START)
+    tell_in_order(ex, ex.ask())
+    gen1 = ex.ask()
+    assert len(gen1) + len(ex._open[0].clones) == 128
 
 
 @pytest.mark.parametrize(
     "bad",
     [
         {"population": 1},
-        {"keep_fraction": 1.0},
-        {"keep_fraction": 0.0},
+        {"children": 0},
+        {"lag": -1},
+        {"lag": 0.5},
         {"mutation_prob": 1.5},
         {"k": 0},
         {"sigma": -0.1},
@@ -91,7 +96,10 @@ def test_generation_flow_indices_and_parents():
     assert [c.index for c in gen0] == list(range(12))
     assert all(c.parent is None and c.generation == 0 and c.genome.shape == (1, 3) for c in gen0)
     assert all(((c.genome >= 0) & (c.genome < 1)).all() for c in gen0)
-    assert [c.index for c in ex.ask()] == list(range(12))  # ask is idempotent until tell
+    assert not ex.can_ask, "generation 1 is bred from generation 0's survivors"
+    with pytest.raises(RuntimeError):
+        ex.ask()
+    assert [[c.index for c in b] for b in ex.open_batches()] == [list(range(12))]
     evals = ex.tell(gen0, [fake_descriptor(c.genome) for c in gen0])
     feasible = {c.index for c in gen0 if fake_descriptor(c.genome) is not None}
     assert set(ex.parents) == feasible  # fewer feasible than the population: all kept
@@ -111,7 +119,7 @@ def test_generation_flow_indices_and_parents():
 
 def test_novelty_archive_and_selection_by_hand():
     # the paper's literal procedure: every child evaluated, most novel archived, ties to the older
-    ex = make_noveb(population=4, tie_break="oldest", archive_policy="most_novel", reuse_clones=False)
+    ex = make_noveb(population=4, children=4, tie_break="oldest", archive_policy="most_novel", reuse_clones=False)
     gen0 = ex.ask()
     # codes 0b0, 0b1, 0b11 and one infeasible; k = 3 but only two neighbours exist:
     #   c0: 1, 2 -> 1.5    c1: 1, 1 -> 1.0    c2: 2, 1 -> 1.5 ; archive the most novel, tie -> c0
@@ -120,7 +128,7 @@ def test_novelty_archive_and_selection_by_hand():
     assert [e.archived for e in evals] == [True, False, False, False]
     assert ex.parents == [0, 2, 1]  # novelty order, ties to lower index
 
-    gen1 = ex.ask()  # population 4, keep 50 % -> 4 children, indices 4..7
+    gen1 = ex.ask()  # population 4, 4 children, indices 4..7
     assert [c.index for c in gen1] == [4, 5, 6, 7]
     # pool = parents (codes 0, 3, 1) + children (15, 0, infeasible, 7), archive = {0}.
     # Distances to the others in the pool, then to the archive; k = 3 smallest:
@@ -215,9 +223,13 @@ def test_state_between_ask_and_tell_reissues_the_batch():
     state = state_file.loads(state_file.dumps(ex.state_dict()))
     other = make_noveb(0)
     other.load_state_dict(state)
-    again = other.ask()
+    (again,) = other.open_batches()
     assert [(c.index, c.parent, c.genome.tobytes()) for c in again] == [
         (c.index, c.parent, c.genome.tobytes()) for c in asked
+    ]
+    descs = [fake_descriptor(c.genome) for c in asked]
+    assert [(e.novelty, e.archived) for e in other.tell(again, descs)] == [
+        (e.novelty, e.archived) for e in ex.tell(asked, descs)
     ]
     assert run_rounds(other, 3) == run_rounds(ex, 3)
 
@@ -309,7 +321,7 @@ def test_identical_children_of_one_batch_are_simulated_once():
 
 def test_ties_go_to_the_newest_or_the_oldest_as_configured():
     for tie_break, survivors in (("newest", [3, 2]), ("oldest", [0, 1])):
-        ex = make_noveb(population=2, k=1, mutation_prob=1.0, tie_break=tie_break)
+        ex = make_noveb(population=2, children=2, k=1, mutation_prob=1.0, tie_break=tie_break)
         zero = np.array([0], np.uint64)
         ex.tell(ex.ask(), [zero, zero])
         gen1 = ex.ask()
@@ -319,14 +331,14 @@ def test_ties_go_to_the_newest_or_the_oldest_as_configured():
 
 
 def test_shortest_tie_break_keeps_fewer_waypoints_then_the_newest():
-    ex = make_noveb(population=2, k=1, mutation_prob=0.0, extend_prob=1.0, tie_break="shortest")
+    ex = make_noveb(population=2, children=2, k=1, mutation_prob=0.0, extend_prob=1.0, tie_break="shortest")
     zero = np.array([0], np.uint64)
     ex.tell(ex.ask(), [zero, zero])  # two one-waypoint parents
     gen1 = ex.ask()
     assert [len(c.genome) for c in gen1] == [2, 2]  # extended children
     ex.tell(gen1, [zero, zero])  # four individuals, all novelty 0
     assert sorted(ex.parents) == [0, 1], "the one-waypoint parents survive"
-    newest = make_noveb(population=2, k=1, mutation_prob=0.0, extend_prob=1.0, tie_break="newest")
+    newest = make_noveb(population=2, children=2, k=1, mutation_prob=0.0, extend_prob=1.0, tie_break="newest")
     newest.tell(newest.ask(), [zero, zero])
     newest.tell(newest.ask(), [zero, zero])
     assert newest.parents == [3, 2], "without parsimony the longer children win the ties"
@@ -347,7 +359,7 @@ def test_max_new_caps_a_batch():
     ex = make_noveb()
     cands = ex.ask(max_new=5)
     assert [c.index for c in cands] == [0, 1, 2, 3, 4]
-    assert [c.index for c in ex.ask(max_new=1)] == [0, 1, 2, 3, 4]  # the open batch is re-issued as it is
+    assert [[c.index for c in b] for b in ex.open_batches()] == [[0, 1, 2, 3, 4]]  # re-issued as it is
     ex.tell(cands, [fake_descriptor(c.genome) for c in cands])
     assert ex.ask()[0].index == 5
 
@@ -364,3 +376,116 @@ def test_max_waypoints_stops_extension_and_is_off_by_default():
             ex.tell(cands, [fake_descriptor(c.genome) for c in cands])
     assert max(lengths["capped"]) == 3
     assert max(lengths["free"]) > 3
+
+
+def tell_in_order(explorer, batch):
+    return explorer.tell(batch, [fake_descriptor(c.genome) for c in batch])
+
+
+def test_lag_breeds_a_generation_from_the_survivors_of_the_one_lag_plus_one_before():
+    ex = make_noveb(3, children=6, lag=1)
+    gen0 = ex.ask()
+    assert not ex.can_ask, "nothing to breed from before generation 0 is told"
+    tell_in_order(ex, gen0)
+    parents0 = set(ex.parents)
+    gen1, gen2 = ex.ask(), ex.ask()
+    assert not ex.can_ask, "lag 1: two generations open at most"
+    assert {c.generation for c in gen1} == {1} and {c.generation for c in gen2} == {2}
+    assert {c.parent for c in gen1 + gen2} <= parents0, "both bred from generation 0's survivors"
+    assert [c.index for c in gen1 + gen2] == list(range(12, 12 + len(gen1) + len(gen2)))
+    with pytest.raises(ValueError):
+        tell_in_order(ex, gen2)  # batches are told in the order asked
+    tell_in_order(ex, gen1)
+    parents1 = set(ex.parents)
+    gen3 = ex.ask()
+    assert {c.parent for c in gen3} <= parents1, "generation 3 is bred from generation 1's survivors"
+    assert [b[0].generation for b in ex.open_batches() if b] == [2, 3]
+    tell_in_order(ex, gen2)
+    assert ex.generation == 3
+
+
+def test_a_child_repeating_a_genome_still_in_flight_reuses_its_outcome_when_told():
+    # one-waypoint parents, every child extended and not mutated: a parent has one possible child (the midpoint
+    # inserted), so generations 1 and 2, both bred from generation 0's survivors, propose the same genomes
+    ex = make_noveb(4, children=12, lag=1, mutation_prob=0.0, extend_prob=1.0)
+    tell_in_order(ex, ex.ask())
+    gen1, gen2 = ex.ask(), ex.ask()
+    (clones,) = [b.clones for b in ex._open[1:]]
+    in_flight = {c.index: c for c in gen1}
+    assert len([c for c in clones if c.source in in_flight]) >= 6, "generation 2 repeats generation 1's genomes"
+    assert all(c.source in in_flight or c.source >= 12 + len(gen1) for c in clones)
+    tell_in_order(ex, gen1)
+    tell_in_order(ex, gen2)
+    assert ex.last_clones == clones
+    source = {**in_flight, **{c.index: c for c in gen2}}
+    for clone in clones:
+        np.testing.assert_array_equal(clone.genome, source[clone.source].genome)
+        feasible = fake_descriptor(clone.genome) is not None
+        assert (clone.novelty is not None) == feasible, "it reuses its source's outcome, told by now"
+    assert ex._in_flight == {} and ex.open_batches() == []
+
+
+def test_state_with_two_open_batches_continues_identically():
+    ex = make_noveb(5, children=8, lag=1, extend_prob=0.3)
+    tell_in_order(ex, ex.ask())
+    ex.ask()
+    for _ in range(3):
+        ex.ask()
+        tell_in_order(ex, ex.open_batches()[0])
+    ex.ask()
+    assert len(ex.open_batches()) == 2
+    state = state_file.loads(state_file.dumps(ex.state_dict()))
+    other = make_noveb(0, children=8, lag=1)
+    other.load_state_dict(state)
+
+    def drive(explorer, rounds):
+        seen = []
+        for _ in range(rounds):
+            batch = explorer.open_batches()[0]
+            evals = tell_in_order(explorer, batch)
+            seen.append(
+                [(c.index, c.genome.tobytes(), e.novelty, e.archived) for c, e in zip(batch, evals, strict=True)]
+            )
+            seen.append([(c.source, c.novelty, c.survived) for c in explorer.last_clones])
+            explorer.ask()
+        return seen
+
+    assert drive(other, 5) == drive(ex, 5)
+    assert other.parents == ex.parents
+
+
+def test_a_state_stored_by_the_generational_version_loads_with_the_same_meaning():
+    """Checkpoints made before generations could overlap held one batch (``pending``, ``asked``) and the number
+    of children as ``keep_fraction``; such a run resumes as the same search."""
+    ex = make_noveb(5, population=6, children=6)
+    run_rounds(ex, 2)
+    asked = ex.ask()
+    state = state_file.loads(state_file.dumps(ex.state_dict()))
+    old = {k: v for k, v in state.items() if k != "open"}
+    (batch,) = state["open"]
+    old.update(pending=batch["candidates"], pending_clones=batch["clones"], asked=True)
+    old["config"] = {k: v for k, v in state["config"].items() if k not in ("children", "lag")}
+    old["config"]["keep_fraction"] = 0.5
+    other = make_noveb(0)
+    other.load_state_dict(old)
+    assert (other.config.population, other.config.children, other.config.lag) == (6, 6, 0)
+    (again,) = other.open_batches()
+    assert [c.genome.tobytes() for c in again] == [c.genome.tobytes() for c in asked]
+    tell_in_order(other, again)
+    tell_in_order(ex, asked)
+    assert run_rounds(other, 3) == run_rounds(ex, 3)
+
+
+def test_ask_while_possible_opens_what_the_lag_allows_within_the_attempts_and_generations():
+    from babblegen.explorers.base import ask_while_possible
+
+    ex = make_noveb(2, children=6, lag=2, generations=4)
+    assert len(ask_while_possible(ex, None, 4)) == 1  # generation 0 alone
+    tell_in_order(ex, ex.open_batches()[0])
+    assert len(ask_while_possible(ex, None, 4)) == 3  # generations 1, 2 and 3: the last there is
+    tell_in_order(ex, ex.open_batches()[0])
+    assert ask_while_possible(ex, None, 4) == []
+    capped = make_noveb(2, children=6, lag=2)
+    tell_in_order(capped, ask_while_possible(capped, 14, 2000)[0])
+    batches = ask_while_possible(capped, 14, 2000)
+    assert sum(len(b) for b in batches) == 2 and capped.attempts_asked == 14

@@ -20,7 +20,10 @@ from babblegen.tasks import get_task
 from babblegen.world.rollout import Command
 from babblegen.world.world import WorldSettings
 
-ARGS = ["--max-attempts", "24", "--checkpoint-every", "1", "--width", "64", "--height", "64", "--no-progress"]
+# generations overlap (lag 2: three in flight), so workers take movements of several generations at once, and the
+# results must still be applied in attempt order
+ARGS = ["--max-attempts", "40", "--checkpoint-every", "1", "--width", "64", "--height", "64", "--no-progress"]
+ARGS += ["--children", "8", "--lag", "2"]
 SETTINGS = WorldSettings(camera_width=64, camera_height=64)
 
 
@@ -58,6 +61,33 @@ def test_two_workers_write_the_same_dataset_as_one(one_worker, tmp_path):
     # contact-rich: each worker's world saw a different contact history than the single world did
     touched = [any(r["touched"].values()) for r in read_attempts(out) if r["feasible"]]
     assert sum(touched) >= 5 and any(a and b for a, b in zip(touched, touched[1:], strict=False)), touched
+
+
+def test_four_worker_processes_on_two_cores_write_the_same_dataset_as_one(one_worker, tmp_path):
+    """Oversubscribed: four workers share two cores, so movements finish in an order unlike one worker's."""
+    out = tmp_path / "four"
+    assert main(["generate", "--out", str(out), "--seed", "2", "--workers", "4", *ARGS]) == 0
+    assert_same_dataset(one_worker, out)
+    generations = [r["generation"] for r in read_attempts(out)]
+    assert max(generations) >= 4 and generations == sorted(generations)
+
+
+def test_kill_9_of_a_run_with_workers_then_resume_writes_the_same_dataset(one_worker, tmp_path):
+    import subprocess
+    import sys
+
+    out = tmp_path / "killed"
+    cmd = [sys.executable, "-m", "babblegen.cli", "generate", "--out", str(out), "--seed", "2", "--workers", "2"]
+    proc = subprocess.Popen([*cmd, *ARGS], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    rows = out / "babblegen" / "attempts.jsonl"
+    deadline = time.time() + 300
+    while not (rows.exists() and rows.read_bytes().count(b"\n") >= 20):  # past a commit point, before the end
+        assert proc.poll() is None and time.time() < deadline
+        time.sleep(0.02)
+    os.killpg(proc.pid, signal.SIGKILL)  # the run and its workers, at once
+    proc.wait(timeout=60)
+    assert main(["generate", "--out", str(out), "--resume", "--workers", "2", "--no-progress"]) == 0
+    assert_same_dataset(one_worker, out)
 
 
 def test_ray_auto_starts_a_local_cluster_and_writes_the_same_dataset(one_worker, tmp_path):
@@ -211,7 +241,7 @@ def test_an_episode_prepared_by_its_owner_after_it_was_handed_to_an_idle_worker_
     import multiprocessing as mp
     import threading
 
-    from babblegen.parallel import _Worker
+    from babblegen.parallel.processes import _Worker
 
     ev = ProcessEvaluator.__new__(ProcessEvaluator)
     ev._arrived, ev._prepared, ev._handed_over = threading.Condition(), {}, {}

@@ -17,7 +17,17 @@ import numpy as np
 
 from babblegen.novelty import Archive, make_archive_policy
 
-__all__ = ["Candidate", "Clone", "Evaluation", "Explorer", "build_config", "check_descriptors", "genome_key"]
+__all__ = [
+    "Batch",
+    "Candidate",
+    "Clone",
+    "Evaluation",
+    "Explorer",
+    "ask_while_possible",
+    "build_config",
+    "check_descriptors",
+    "genome_key",
+]
 
 KIND_WAYPOINTS = "ee_waypoints"
 KIND_JOINTS = "joint_target"
@@ -88,14 +98,27 @@ class Evaluation:
     archived: bool
 
 
-class Explorer(ABC):
-    """Generational ask/tell explorer.
+@dataclass
+class Batch:
+    """One generation's proposals as asked: the candidates to evaluate and the clones of tried genomes."""
 
-    ``ask`` returns the current batch of candidates to evaluate (possibly empty when every proposal repeats a
-    genome already tried); calling it again before ``tell`` returns the same batch (so a run restored from a
-    checkpoint taken between the two re-issues it). ``ask(max_new=n)`` caps the batch at n candidates.
-    ``tell`` takes the same candidates in the same order with one descriptor each (``None`` when the
-    candidate was infeasible); afterwards ``last_clones`` lists the proposals that reused earlier outcomes.
+    generation: int
+    candidates: list[Candidate]
+    clones: list[Clone]
+
+
+class Explorer(ABC):
+    """Generational ask/tell explorer whose generations may overlap by a fixed number.
+
+    ``ask`` opens the next generation's batch and returns its candidates (possibly none, when every proposal
+    repeats a genome already tried); ``can_ask`` says whether another batch may be opened before the oldest
+    open one is told (NovEB's ``lag``). ``tell`` takes the oldest open batch's candidates in the same order with
+    one descriptor each (``None`` when the candidate was infeasible); afterwards ``last_clones`` lists the
+    proposals that reused earlier outcomes. ``open_batches`` re-issues the open batches (after a resume).
+    ``ask(max_new=n)`` caps the batch at n candidates.
+
+    The order of calls alone decides what is proposed: a caller that always asks while ``can_ask`` holds and
+    tells batches in the order asked gets the same search whatever evaluates the candidates, and however fast.
     """
 
     name: str
@@ -108,6 +131,15 @@ class Explorer(ABC):
 
     @abstractmethod
     def tell(self, candidates: list[Candidate], descriptors: list[np.ndarray | None]) -> list[Evaluation]: ...
+
+    @property
+    @abstractmethod
+    def can_ask(self) -> bool:
+        """Whether ``ask`` may open another batch now."""
+
+    @abstractmethod
+    def open_batches(self) -> list[list[Candidate]]:
+        """The candidates of every batch asked and not told yet, oldest first."""
 
     @abstractmethod
     def state_dict(self) -> dict[str, Any]: ...
@@ -125,19 +157,41 @@ class Explorer(ABC):
         """Number of completed ask/tell rounds."""
 
     @property
+    @abstractmethod
+    def attempts_asked(self) -> int:
+        """Candidates handed out so far (attempt indices used), the open batches included."""
+
+    @property
     def done(self) -> bool:
         """True once the configured number of generations has been told."""
         return self.generation >= int(getattr(self.config, "generations", 0))
 
 
+def ask_while_possible(explorer: Explorer, max_attempts: int | None, generations: int) -> list[list[Candidate]]:
+    """Open every batch the explorer allows now, short of ``max_attempts`` attempts and ``generations``
+    generations (the run's: a resume may extend them): the one rule by which the run loop and the benchmarks
+    interleave asks and tells, so that they explore alike."""
+    asked: list[list[Candidate]] = []
+    while explorer.can_ask:
+        if explorer.generation + len(explorer.open_batches()) >= generations:
+            break
+        if max_attempts is not None and explorer.attempts_asked >= max_attempts:
+            break
+        left = None if max_attempts is None else max_attempts - explorer.attempts_asked
+        asked.append(explorer.ask(max_new=left))
+    return asked
+
+
 class ArchiveExplorer(Explorer):
     """The state every generational explorer here shares: its RNG, novelty archive and archive policy,
-    the generation and attempt counters, and the batch handed out by ``ask`` and not yet told.
+    the generation and attempt counters, and the batches handed out by ``ask`` and not yet told.
 
-    Subclasses set ``config_class`` and add their own state through ``_extra_state`` / ``_load_extra_state``.
+    Subclasses set ``config_class``, implement ``_propose`` (the next batch's proposals), and add their own state
+    through ``_extra_state`` / ``_load_extra_state``; ``max_open`` bounds the batches open at once.
     """
 
     config_class: type
+    max_open = 1
 
     def __init__(self, config: Any, rng_seed: int) -> None:
         self.config = build_config(self.config_class, config)
@@ -146,11 +200,10 @@ class ArchiveExplorer(Explorer):
         self.policy = self._make_policy()
         self._generation = 0
         self._next_index = 0
-        self._pending: list[Candidate] = []
-        self._pending_clones: list[Clone] = []
-        self._asked = False  # a batch is out (ask called, tell not yet)
-        # Every genome tried so far -> (its attempt index, its descriptor or None when infeasible).
+        self._open: list[Batch] = []  # asked, not told, oldest first
+        # Every genome tried so far -> (its attempt index, its descriptor or None when infeasible) ...
         self._outcomes: dict[str, tuple[int, np.ndarray | None]] = {}
+        self._in_flight: dict[str, int] = {}  # ... and those asked but not told yet -> their attempt index
         self.last_clones: list[Clone] = []  # the clones resolved by the last tell, for the sidecar
 
     @property
@@ -163,13 +216,30 @@ class ArchiveExplorer(Explorer):
 
     @property
     def batch_open(self) -> bool:
-        """A batch was asked for and not told yet (after a resume: the one in flight at the commit point)."""
-        return self._asked
+        """A batch was asked for and not told yet (after a resume: those in flight at the commit point)."""
+        return bool(self._open)
 
     @property
     def attempts_asked(self) -> int:
-        """Candidates handed out so far (attempt indices used), the open batch included."""
+        """Candidates handed out so far (attempt indices used), the open batches included."""
         return self._next_index
+
+    @property
+    def can_ask(self) -> bool:
+        return len(self._open) < self.max_open
+
+    def open_batches(self) -> list[list[Candidate]]:
+        return [self._copies(b.candidates) for b in self._open]
+
+    def ask(self, max_new: int | None = None) -> list[Candidate]:
+        if not self.can_ask:
+            raise RuntimeError(f"{len(self._open)} batches are open: tell the oldest before asking another")
+        self._open_batch(self._propose(), max_new)
+        return self._copies(self._open[-1].candidates)
+
+    @abstractmethod
+    def _propose(self) -> list[tuple[str, np.ndarray, int | None]]:
+        """The next batch's proposals as (kind, genome, parent attempt)."""
 
     def _make_policy(self):
         name = getattr(self.config, "archive_policy", "most_novel")
@@ -184,38 +254,55 @@ class ArchiveExplorer(Explorer):
     def _open_batch(self, batch: list[tuple[str, np.ndarray, int | None]], max_new: int | None) -> None:
         """Split proposed (kind, genome, parent) into candidates to evaluate and clones of tried genomes.
 
-        With ``reuse_clones`` (the default) a genome tried before, or proposed twice in this batch, becomes a
-        `Clone` of that attempt; otherwise every proposal is evaluated (the paper's literal re-simulation).
-        ``max_new`` caps the candidates (the run's last generation); proposals past it are dropped.
+        With ``reuse_clones`` (the default) a genome tried before, still in flight in an earlier open batch, or
+        proposed twice in this batch, becomes a `Clone` of that attempt (resolved when its batch is told, which is
+        never before the attempt it copies); otherwise every proposal is evaluated (the paper's literal
+        re-simulation). ``max_new`` caps the candidates (the run's last generation); proposals past it are
+        dropped.
         """
         reuse = bool(getattr(self.config, "reuse_clones", True))
-        seen: dict[str, int] = {}
+        generation = self._generation + len(self._open)
         cands: list[Candidate] = []
         clones: list[Clone] = []
         for kind, genome, parent in batch:
             key = genome_key(kind, genome)
             if reuse and key in self._outcomes:
-                clones.append(Clone(self._generation, kind, genome, parent, self._outcomes[key][0]))
-            elif reuse and key in seen:
-                clones.append(Clone(self._generation, kind, genome, parent, seen[key]))
+                clones.append(Clone(generation, kind, genome, parent, self._outcomes[key][0]))
+            elif reuse and key in self._in_flight:
+                clones.append(Clone(generation, kind, genome, parent, self._in_flight[key]))
             elif max_new is None or len(cands) < max_new:
-                seen[key] = self._next_index
-                cands.append(Candidate(self._next_index, self._generation, kind, genome, parent))
+                self._in_flight.setdefault(key, self._next_index)
+                cands.append(Candidate(self._next_index, generation, kind, genome, parent))
                 self._next_index += 1
-        self._pending, self._pending_clones, self._asked = cands, clones, True
+        self._open.append(Batch(generation, cands, clones))
 
-    def _issued(self) -> list[Candidate]:
-        return [dataclasses.replace(c, genome=c.genome.copy()) for c in self._pending]
+    @staticmethod
+    def _copies(candidates: list[Candidate]) -> list[Candidate]:
+        return [dataclasses.replace(c, genome=c.genome.copy()) for c in candidates]
+
+    @property
+    def _pending(self) -> list[Candidate]:
+        """The candidates of the oldest open batch (the one ``tell`` takes next)."""
+        return self._open[0].candidates if self._open else []
+
+    @property
+    def _pending_clones(self) -> list[Clone]:
+        return self._open[0].clones if self._open else []
+
+    def _check_tell(self, candidates: list[Candidate], descriptors: list[np.ndarray | None]):
+        return check_descriptors(self._pending, candidates, descriptors, bool(self._open))
 
     def _resolve(self, codes: list[np.ndarray | None]) -> list[np.ndarray | None]:
-        """Record the told outcomes; return each pending clone's reused descriptor."""
+        """Record the oldest batch's told outcomes; return each of its clones' reused descriptor."""
         for c, code in zip(self._pending, codes, strict=True):
-            self._outcomes[genome_key(c.kind, c.genome)] = (c.index, code)
+            key = genome_key(c.kind, c.genome)
+            self._outcomes[key] = (c.index, code)
+            if self._in_flight.get(key) == c.index:
+                del self._in_flight[key]
         return [self._outcomes[genome_key(c.kind, c.genome)][1] for c in self._pending_clones]
 
     def _close_batch(self) -> None:
-        self.last_clones = self._pending_clones
-        self._pending, self._pending_clones, self._asked = [], [], False
+        self.last_clones = self._open.pop(0).clones
         self._generation += 1
 
     def state_dict(self) -> dict[str, Any]:
@@ -225,9 +312,14 @@ class ArchiveExplorer(Explorer):
             "rng": self.rng.bit_generator.state,
             "generation": self._generation,
             "next_index": self._next_index,
-            "asked": self._asked,
-            "pending": [dataclasses.asdict(c) for c in self._pending],
-            "pending_clones": [dataclasses.asdict(c) for c in self._pending_clones],
+            "open": [
+                {
+                    "generation": b.generation,
+                    "candidates": [dataclasses.asdict(c) for c in b.candidates],
+                    "clones": [dataclasses.asdict(c) for c in b.clones],
+                }
+                for b in self._open
+            ],
             "outcomes": _pack_outcomes(self._outcomes),
             "archive": self.archive.state_dict(),
             **self._extra_state(),
@@ -236,18 +328,38 @@ class ArchiveExplorer(Explorer):
     def load_state_dict(self, state: dict[str, Any]) -> None:
         if state.get("name") != self.name:
             raise ValueError(f"state is for explorer {state.get('name')!r}, not {self.name!r}")
-        self.config = build_config(self.config_class, dict(state["config"]))
+        self.config = build_config(self.config_class, self._stored_config(dict(state["config"])))
         self.policy = self._make_policy()
         self.rng.bit_generator.state = state["rng"]
         self._generation = int(state["generation"])
         self._next_index = int(state["next_index"])
-        self._pending = [Candidate(**{**c, "genome": np.array(c["genome"])}) for c in state["pending"]]
-        self._pending_clones = [Clone(**{**c, "genome": np.array(c["genome"])}) for c in state["pending_clones"]]
-        self._asked = bool(state["asked"])
+        if "open" in state:
+            batches = state["open"]
+        else:  # stored before batches could overlap: at most one, open if asked
+            batches = [
+                {"generation": self._generation, "candidates": state["pending"], "clones": state["pending_clones"]}
+            ][: int(bool(state["asked"]))]
+        self._open = [
+            Batch(
+                int(b["generation"]),
+                [Candidate(**{**c, "genome": np.array(c["genome"])}) for c in b["candidates"]],
+                [Clone(**{**c, "genome": np.array(c["genome"])}) for c in b["clones"]],
+            )
+            for b in batches
+        ]
         self._outcomes = _unpack_outcomes(state["outcomes"])
+        self._in_flight = {}
+        for b in self._open:
+            for c in b.candidates:
+                self._in_flight.setdefault(genome_key(c.kind, c.genome), c.index)
         self.archive = Archive()
         self.archive.load_state_dict(state["archive"])
         self._load_extra_state(state)
+
+    @classmethod
+    def _stored_config(cls, config: dict[str, Any]) -> dict[str, Any]:
+        """A configuration as a checkpoint stored it, in this version's terms (subclasses upgrade old ones)."""
+        return config
 
 
 def build_config[C](cls: type[C], config: C | dict[str, Any] | None) -> C:

@@ -1,16 +1,17 @@
 """Novelty-driven Evolutionary Babbling (Maestre et al.): novelty search with NSGA-II survival.
 
 Generation 0 asks ``population`` random genomes (one final point uniform in [0, 1]^3). Every later generation
-proposes children of the current parents: binary tournament on (rank, crowding), optional crossover, Gaussian
-mutation with probability ``mutation_prob`` (of one waypoint, or of all with ``mutation_scope = "genome"``)
-and waypoint extension with probability ``extend_prob``. A child
-that is neither mutated nor extended is a copy of its parent. The simulation is deterministic, so such a clone
-(any genome tried before) reuses the earlier outcome instead of being simulated again (``reuse_clones``; off,
-it is evaluated again as in the paper's noisy simulator). ``tell`` recomputes the novelty of parents ∪ feasible
-children (clones included) against that union plus the archive, archives the most novel newly evaluated child
-(by default only if the archive does not already hold its descriptor), and keeps ``population`` survivors by
-NSGA-II on the single objective novelty, i.e. elitist truncation, with ties broken by ``tie_break`` (by
-default fewer waypoints first: parsimony pressure against genomes that grow without adding novelty).
+proposes ``children`` children of the current parents (those selected after the generation ``lag + 1`` before it,
+so that ``lag + 1`` generations can be evaluated at once): binary tournament on (rank, crowding), optional
+crossover, Gaussian mutation with probability ``mutation_prob`` (of one waypoint, or of all with ``mutation_scope =
+"genome"``) and waypoint extension with probability ``extend_prob``. A child that is neither mutated nor extended
+is a copy of its parent. The simulation is deterministic, so such a clone (any genome tried before, or still being
+tried) reuses that outcome instead of being simulated again (``reuse_clones``; off, it is evaluated again as in the
+paper's noisy simulator). ``tell`` recomputes the novelty of parents ∪ feasible children (clones included) against
+that union plus the archive, archives the most novel newly evaluated child (by default only if the archive does not
+already hold its descriptor), and keeps ``population`` survivors by NSGA-II on the single objective novelty, i.e.
+elitist truncation, with ties broken by ``tie_break`` (by default fewer waypoints first: parsimony pressure against
+genomes that grow without adding novelty).
 
 Infeasible candidates (no IK solution or no collision-free plan: descriptor ``None``) have no behaviour, so
 they get no novelty, are never archived and never survive selection; they still consume an attempt index.
@@ -28,13 +29,12 @@ from babblegen.explorers.base import (
     ArchiveExplorer,
     Candidate,
     Evaluation,
-    check_descriptors,
 )
 from babblegen.genome import crossover, extend, gaussian_mutation, random_genome, waypoint_mutation
 from babblegen.novelty import ARCHIVE_POLICIES, novelty
 from babblegen.selection import binary_tournament, crowding_distance, non_dominated_sort, nsga2_select
 
-__all__ = ["NovEB", "NovEBConfig"]
+__all__ = ["NovEB", "NovEBConfig", "upgrade_stored_config"]
 
 
 @dataclass
@@ -42,16 +42,21 @@ class NovEBConfig:
     """NovEB parameters; the numbers are those of the paper's appendix. Where babblegen departs from the
     paper's procedure (README, "Where babblegen departs from the paper"), the option restoring it is named.
 
-    ``keep_fraction`` is the fraction of parents ∪ children that survives, so each generation asks
-    ``population * (1 / keep_fraction - 1)`` children (12 with the defaults). ``mutation_prob`` and
-    ``extend_prob`` are per individual; ``sigma`` is in normalised workspace units. Crossover is an option
-    the paper does not use (``crossover_prob = 0``); see :func:`babblegen.genome.crossover`.
+    ``population`` parents breed ``children`` children per generation, and the ``population`` best of parents ∪
+    children survive (the paper: 12 and 12, "50 % kept"; babblegen: 12 and 128, which explores more widely per
+    attempt and gives about 40 new movements per generation to run at once). ``lag`` lets generations overlap:
+    generation g is bred from the parents selected after generation g - 1 - lag, so up to ``lag + 1`` generations'
+    movements can run at once (the paper: 0, each generation waits for the one before). Both are settings of the
+    run, never of the hardware: the same seed gives the same search on one worker or a cluster. ``mutation_prob``
+    and ``extend_prob`` are per individual; ``sigma`` is in normalised workspace units. Crossover is an option the
+    paper does not use (``crossover_prob = 0``); see :func:`babblegen.genome.crossover`.
     """
 
     population: int = 12
+    children: int = 128  # the paper: 12 (see the README's departures: more children of the same parents)
+    lag: int = 0
     generations: int = 2000
     k: int = 3
-    keep_fraction: float = 0.5
     mutation_prob: float = 0.3
     sigma: float = 0.3
     extend_prob: float = 0.05
@@ -66,12 +71,14 @@ class NovEBConfig:
     def __post_init__(self) -> None:
         if int(self.population) != self.population or self.population < 2:
             raise ValueError(f"population must be an integer >= 2, got {self.population}")
+        if int(self.children) != self.children or self.children < 1:
+            raise ValueError(f"children must be an integer >= 1, got {self.children}")
+        if int(self.lag) != self.lag or self.lag < 0:
+            raise ValueError(f"lag must be an integer >= 0, got {self.lag}")
         if int(self.generations) != self.generations or self.generations < 1:
             raise ValueError(f"generations must be an integer >= 1, got {self.generations}")
         if int(self.k) != self.k or self.k < 1:
             raise ValueError(f"k must be an integer >= 1, got {self.k}")
-        if not 0.0 < self.keep_fraction < 1.0:
-            raise ValueError(f"keep_fraction must be in (0, 1) so that children exist, got {self.keep_fraction}")
         for name in ("mutation_prob", "extend_prob", "crossover_prob"):
             p = getattr(self, name)
             if not 0.0 <= p <= 1.0:
@@ -86,13 +93,17 @@ class NovEBConfig:
             raise ValueError(f"unknown mutation_scope {self.mutation_scope!r}; known: {list(MUTATION_SCOPES)}")
         if self.tie_break not in TIE_BREAKS:
             raise ValueError(f"unknown tie_break {self.tie_break!r}; known: {list(TIE_BREAKS)}")
-        if self.n_children < 1:
-            raise ValueError(f"keep_fraction {self.keep_fraction} leaves no room for children")
 
-    @property
-    def n_children(self) -> int:
-        """Children asked per generation after the first."""
-        return int(round(self.population * (1.0 / self.keep_fraction - 1.0)))
+
+def upgrade_stored_config(config: dict[str, Any]) -> dict[str, Any]:
+    """A NovEB section stored by an earlier version, in this version's terms, meaning the same search: the
+    number of children was ``population * (1 / keep_fraction - 1)``, and generations did not overlap."""
+    config = dict(config)
+    if "keep_fraction" in config:
+        kept = float(config.pop("keep_fraction"))
+        config.setdefault("children", int(round(int(config.get("population", 12)) * (1.0 / kept - 1.0))))
+    config.setdefault("lag", 0)
+    return config
 
 
 TIE_BREAKS = ("newest", "oldest", "random", "shortest")
@@ -104,6 +115,10 @@ class NovEB(ArchiveExplorer):
 
     name = "noveb"
     config_class = NovEBConfig
+
+    @classmethod
+    def _stored_config(cls, config: dict[str, Any]) -> dict[str, Any]:
+        return upgrade_stored_config(config)
 
     def __init__(
         self,
@@ -131,18 +146,25 @@ class NovEB(ArchiveExplorer):
         return [int(i) for i in self._parent_index]
 
     # ------------------------------------------------------------------ ask / tell
-    def ask(self, max_new: int | None = None) -> list[Candidate]:
-        if not self._asked:
-            if not self._parents:
-                proposals = [(random_genome(self.rng), None) for _ in range(self.config.population)]
-            else:
-                proposals = self._make_children()
-            self._open_batch([(KIND_WAYPOINTS, g, p) for g, p in proposals], max_new)
-        return self._issued()
+    @property
+    def can_ask(self) -> bool:
+        """A generation is bred from the parents selected after the one ``lag + 1`` before it: up to ``lag + 1``
+        generations are open at once. The first waits for nothing; the second waits for the first to be told
+        (there are no parents before)."""
+        if not self._open:
+            return True
+        return bool(self._parents) and len(self._open) <= self.config.lag
+
+    def _propose(self) -> list[tuple[str, np.ndarray, int | None]]:
+        if not self._parents:
+            proposals = [(random_genome(self.rng), None) for _ in range(self.config.population)]
+        else:
+            proposals = self._make_children()
+        return [(KIND_WAYPOINTS, g, p) for g, p in proposals]
 
     def _make_children(self) -> list[tuple[np.ndarray, int]]:
         cfg = self.config
-        n = cfg.n_children
+        n = cfg.children
         objectives = self._parent_novelty[:, None]
         rank = non_dominated_sort(objectives)
         crowd = crowding_distance(objectives, rank)
@@ -164,7 +186,7 @@ class NovEB(ArchiveExplorer):
         return children
 
     def tell(self, candidates: list[Candidate], descriptors: list[np.ndarray | None]) -> list[Evaluation]:
-        codes = check_descriptors(self._pending, candidates, descriptors, self._asked)
+        codes = self._check_tell(candidates, descriptors)
         pending, clones = self._pending, self._pending_clones
         clone_codes = self._resolve(codes)
         evaluations = [Evaluation(None, False) for _ in pending]

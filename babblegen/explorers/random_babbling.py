@@ -18,7 +18,6 @@ from babblegen.explorers.base import (
     ArchiveExplorer,
     Candidate,
     Evaluation,
-    check_descriptors,
 )
 from babblegen.novelty import ARCHIVE_POLICIES, novelty
 
@@ -53,6 +52,9 @@ class RandomBabbling(ArchiveExplorer):
 
     name = "random"
     config_class = RandomBabblingConfig
+    # What is proposed depends on neither the outcomes nor their timing, so batches may be open at once freely:
+    # 8 of the default 12 keep 96 movements available to run whatever evaluates them.
+    max_open = 8
 
     def __init__(
         self,
@@ -70,15 +72,13 @@ class RandomBabbling(ArchiveExplorer):
             raise ValueError("joint_limits must have lower <= upper for every joint")
         self.joint_limits = limits
 
-    def ask(self, max_new: int | None = None) -> list[Candidate]:
-        if not self._asked:
-            lo, hi = self.joint_limits[:, 0], self.joint_limits[:, 1]
-            targets = lo + (hi - lo) * self.rng.random((self.config.population, lo.shape[0]))
-            self._open_batch([(KIND_JOINTS, t, None) for t in targets], max_new)
-        return self._issued()
+    def _propose(self) -> list[tuple[str, np.ndarray, int | None]]:
+        lo, hi = self.joint_limits[:, 0], self.joint_limits[:, 1]
+        targets = lo + (hi - lo) * self.rng.random((self.config.population, lo.shape[0]))
+        return [(KIND_JOINTS, t, None) for t in targets]
 
     def tell(self, candidates: list[Candidate], descriptors: list[np.ndarray | None]) -> list[Evaluation]:
-        codes = check_descriptors(self._pending, candidates, descriptors, self._asked)
+        codes = self._check_tell(candidates, descriptors)
         self._resolve(codes)
         evaluations = [Evaluation(None, False) for _ in codes]
         feasible = [i for i, d in enumerate(codes) if d is not None]

@@ -57,6 +57,7 @@ class Rollout:
     final_poses: np.ndarray | None = None  # (n_objects, 7)
     timings: dict[str, float] = field(default_factory=dict)  # seconds: ik, plan, sim, render, total
     prepared: dict[str, Any] = field(default_factory=dict)  # sink name -> what it needs, made where the rollout ran
+    code: np.ndarray | None = None  # behaviour descriptor of the after image, computed where the rollout ran
 
     @property
     def before_image(self) -> np.ndarray | None:

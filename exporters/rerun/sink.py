@@ -25,6 +25,7 @@ if TYPE_CHECKING:
 RERUN_DIR = "rerun"
 INDEX = "index.json"
 SEGMENT = "segment-{:05d}.rrd"
+FLUSH_TIMEOUT_S = 120.0  # a segment's flush takes well under a second; only a stuck writer takes this long
 
 
 def _guarded(method: Callable) -> Callable:
@@ -202,7 +203,9 @@ class RerunSink(Sink):
         rec, self._rec = self._rec, None
         self.episodes.send(rec)
         self.columns.send(rec)
-        rec.flush()
+        # bounded: on a full disk the SDK's file writer can stop without the flush ever returning (seen with
+        # rerun-sdk 0.41); a timeout raises, and the sink is disabled like for any other error
+        rec.flush(timeout_sec=FLUSH_TIMEOUT_S)
         rec.disconnect()
         tally = self.columns.tally
         self._load_index()["segments"].append(
