@@ -1,11 +1,13 @@
 """NovEB against random motor babbling over the same number of attempted movements (the paper's Fig. 4), and
 the behaviour-descriptor variants the default was chosen from.
 
-Runs the real explorer -> world -> descriptor loop (no LeRobot encoding, which does not change what is
-explored) for each explorer and seed, stopping after ``--attempts`` attempted movements (clones, children
-repeating a tried genome, reuse its outcome and are not attempts), and reports the dataset measures of
-``babblegen report``: distinct genomes executed, duplicate episodes, distinct genomes touching each object,
-the moved objects' final positions in 2 cm cells, and the share of executed attempts with novelty > 0.
+Runs the real explorer -> world -> descriptor loop, asking and telling in the run loop's order (so lagged
+generations explore as in `generate`), without LeRobot encoding and rendering only the behaviour image (neither
+changes what is explored), for each explorer and seed, stopping after ``--attempts`` attempted movements (clones,
+children repeating a tried genome, reuse its outcome and are not attempts), and reports the dataset measures of
+``babblegen report``: distinct genomes executed, duplicate episodes, distinct genomes touching each object, the
+moved objects' final positions in 2 cm cells, the share of executed attempts with novelty > 0, and how many
+movements the search leaves available to run at once (the attempts of every open generation after each tell).
 Per-attempt rows (sidecar layout) go to OUT/<label>.jsonl.
 
     python benchmarks/compare_explorers.py --attempts 1200 --seeds 0 1 2 --jobs 2 --out runs/compare
@@ -25,31 +27,40 @@ import numpy as np
 
 
 def run_one(explorer_name: str, seed: int, attempts: int, out: str, options: dict[str, Any]) -> dict:
+    from collections import deque
+
     from babblegen.assembly import build_descriptor, build_explorer
     from babblegen.config import RunConfig
-    from babblegen.evaluation import LocalEvaluator, arm_info
+    from babblegen.evaluation import arm_info, seeded_rollout, warm_up
+    from babblegen.explorers.base import ask_while_possible
     from babblegen.exporters.report import diversity
     from babblegen.run import command_for
     from babblegen.tasks import get_task
-    from babblegen.world.world import WorldSettings
+    from babblegen.world.world import World, WorldSettings
 
     cfg = RunConfig(explorer=explorer_name, seed=seed)
     task = get_task(cfg.task)
-    world = WorldSettings(**{**cfg.world.to_dict(), **options.get("world", {})})
-    ev = LocalEvaluator(task, world, seed)
+    settings = WorldSettings(**{**cfg.world.to_dict(), **options.get("world", {})})
+    world = World(task, settings, seed=seed)
+    warm_up(world, None)
     ex = build_explorer(cfg, arm_info(task), options.get("explorer"))
     desc = build_descriptor(cfg, options.get("descriptor"))
     names = task.object_names
     label = f"{options.get('label', explorer_name)}-{seed}"
     path = Path(out) / f"{label}.jsonl"
-    t0, clones = time.perf_counter(), 0
+    t0, clones, available = time.perf_counter(), 0, []
+    # the run loop's order of asks and tells (`Run._loop`), so that this explores exactly as `generate` does
+    open_batches = deque(ask_while_possible(ex, attempts, cfg.noveb.generations))
     with open(path, "w") as f:
-        while ex.attempts_asked < attempts:
-            cands = ex.ask(max_new=attempts - ex.attempts_asked)
-            rollouts = ev.evaluate([command_for(c) for c in cands], [c.index for c in cands])
+        while open_batches:
+            cands = open_batches.popleft()
+            # only the behaviour image is rendered: the frames in between change nothing the search sees
+            rollouts = [seeded_rollout(world, command_for(c), seed, c.index, defer_render=True) for c in cands]
             codes = [desc(r.after_image) if r.feasible else None for r in rollouts]
             evals = ex.tell(cands, codes)
             clones += len(ex.last_clones)
+            open_batches.extend(ask_while_possible(ex, attempts, cfg.noveb.generations))
+            available.append(sum(len(b) for b in open_batches))
             for c, r, e, code in zip(cands, rollouts, evals, codes, strict=True):
                 row = {
                     "attempt": c.index,
@@ -60,23 +71,36 @@ def run_one(explorer_name: str, seed: int, attempts: int, out: str, options: dic
                     "reason": r.reason,
                     "novelty": e.novelty,
                     "archived": e.archived,
+                    "timings": {k: round(v, 4) for k, v in r.timings.items()},
                 }
                 if r.feasible:
                     row["descriptor"] = desc.hex(code) if hasattr(desc, "hex") else None
+                    row["n_frames"] = len(r.frames)
                     row["touched"] = dict(zip(names, map(bool, r.touched), strict=True))
                     row["displacement"] = dict(zip(names, np.round(r.displacement, 6).tolist(), strict=True))
                     row["final_poses"] = dict(zip(names, np.round(r.final_poses, 6).tolist(), strict=True))
                 f.write(json.dumps(row) + "\n")
-    ev.close()
+    world.close()
     rows = [json.loads(line) for line in path.read_text().splitlines()]
+    executed = [r for r in rows if r["feasible"]]
     return {
         "label": label,
         "explorer": explorer_name,
         "seed": seed,
         "attempts": len(rows),
-        "executed": sum(bool(r["feasible"]) for r in rows),
+        "executed": len(executed),
+        "feasible_share": len(executed) / max(1, len(rows)),
         "contacts": sum(any((r.get("touched") or {}).values()) for r in rows),
         "clones": clones,
+        "generations": ex.generation,
+        "attempts_per_generation": len(rows) / max(1, ex.generation),
+        # movements that could run at once: the attempts of every open generation, after each tell
+        "available_mean": float(np.mean(available[1:] or [0])),
+        "available_p10": float(np.percentile(available[1:] or [0], 10)),
+        "frames_per_episode": float(np.mean([r["n_frames"] for r in executed] or [0])),
+        "waypoints_per_episode": float(
+            np.mean([len(r["genome"]) for r in executed if r["kind"] == "ee_waypoints"] or [1])
+        ),
         "seconds": time.perf_counter() - t0,
         **diversity(rows, names),
     }
@@ -135,6 +159,11 @@ def main() -> None:
         "touching_genomes",
         "moved_cells",
         "novelty_positive_share",
+        "feasible_share",
+        "attempts_per_generation",
+        "available_mean",
+        "available_p10",
+        "waypoints_per_episode",
     )
     print(f"{'run':>24} " + " ".join(f"{k[:12]:>12}" for k in keys))
     for r in results:
