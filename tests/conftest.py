@@ -30,7 +30,8 @@ def pytest_sessionfinish(session, exitstatus) -> None:
 # fixtures that build a World or make a dataset with the simulator
 SIM_FIXTURES = {"small_noveb_dataset", "small_random_dataset", "small_run", "world", "push", "one_worker"}
 
-SMALL_RUN = ["--workers", "1", "--max-attempts", "24", "--checkpoint-every", "1"]
+# 6 children per generation (the default is 128): 24 attempts then span several generations and commit points
+SMALL_RUN = ["--workers", "1", "--max-attempts", "24", "--checkpoint-every", "1", "--children", "6"]
 SMALL_RUN += ["--width", "64", "--height", "64", "--no-progress"]
 
 
