@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from babblegen.explorers.noveb import NovEBConfig, upgrade_stored_config
-from babblegen.world.settings import WorldSettings
+from babblegen.world.settings import LEGACY_CAMERAS, WorldSettings
 
 # The head camera's video codecs (settings: babblegen.exporters.lerobot_encoding.video_encoder). H.264 is the
 # default: on frames like 128x128 it costs about a third of the CPU time of LeRobot's own default, SVT-AV1, for
@@ -115,6 +115,7 @@ def resumed_config(stored: dict[str, Any], overrides: dict[str, Any] | None = No
     data = json.loads(json.dumps(stored))  # a deep copy
     data.setdefault("video_codec", "libsvtav1")  # runs stored before the setting existed recorded AV1
     data["noveb"] = upgrade_stored_config(data.get("noveb", {}))
+    data["world"].setdefault("cameras", [dict(c) for c in LEGACY_CAMERAS])  # stored before cameras were settings
     for key, value in (overrides or {}).items():
         if value is None:
             continue

@@ -186,8 +186,9 @@ class Run:
     def _features(self) -> dict:
         from babblegen.exporters.lerobot_encoding import features
 
-        shape = (self.config.world.camera_height, self.config.world.camera_width)
-        return features(self.joint_names, self.task.object_names, *shape)
+        world = self.config.world
+        shape = (world.camera_height, world.camera_width)
+        return features(self.joint_names, self.task.object_names, *shape, world.cameras, self.task, world)
 
     def _preparers(self):
         """The sinks' per-episode work, done by the worker that ran the movement: the LeRobot episode's video

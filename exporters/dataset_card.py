@@ -44,6 +44,7 @@ def card_text(info: dict[str, Any], run_info: dict[str, Any], counters: dict[str
   `action` the joint targets sent after observing each frame (LeRobot's convention: `action[t]` leads to
   `observation.state[t+1]`); `observation.ee_pos` the tool point; `observation.environment_state` every object's
   pose (x, y, z, qw, qx, qy, qz); `observation.contacts` which objects the arm touched since the previous frame.
+{_camera_lines(info)}
 - **Task string:** "{run_info.get("episode_task", "")}".
 - **Every attempt**, infeasible ones included, with its genome, descriptor, novelty and contacts:
   `babblegen/attempts.jsonl`; the full configuration and software versions: `babblegen/run.json`.
@@ -66,6 +67,23 @@ Configuration:
         citation_bibtex=CITATION,
     )
     return str(card)
+
+
+def _camera_lines(info: dict[str, Any]) -> str:
+    """The cameras' features and their conventions, when the dataset has more than the head camera's colour."""
+    feats = info.get("features", {})
+    extra = [k for k, ft in feats.items() if k.startswith("observation.images.") and k != "observation.images.head"]
+    if not extra:
+        return ""
+    listed = ", ".join(f"`{k}`" for k in extra)
+    return f"""- **Cameras:** {listed}. `..._depth`: LeRobot depth videos (`is_depth_map`), stored in millimetres,
+  quantized linearly one code per millimetre over the range in the feature's `video.depth_min` / `depth_max`
+  (load with `LeRobotDataset(..., depth_output_unit="m")` for metres). `..._segmentation`: instance ids per pixel
+  (16-bit PNG, read back as the ids; the feature's `info.ids` names them: background, table, floor, robot, each
+  object). Each camera feature's `info` holds `intrinsics` (3x3 pinhole, pixels) and, for a fixed camera,
+  `cam2world` (4x4, OpenCV camera axes: x right, y down, z forward, in the world frame: the robot's torso at the
+  origin, x forward, y left, z up); a moving camera's pose is `observation.cam2world.<camera>` per frame (4x4,
+  row-major)."""
 
 
 def write_card(root: Path, run_info: dict[str, Any], counters: dict[str, int]) -> Path:

@@ -28,6 +28,7 @@ from babblegen.exporters.lerobot_encoding import (
     DEFAULT_VIDEO_CODEC,
     HEAD,
     EncodedEpisode,
+    depth_encoder,
     encode_episode,
     features,
     video_encoder,
@@ -73,6 +74,7 @@ class SegmentWriter:
         self.total_frames = meta.total_frames
         last = None if meta.episodes is None or len(meta.episodes) == 0 else meta.episodes[-1]
         self.next_file: dict[str, tuple[int, int]] = {}
+        # every video feature's segment files advance together: one index for all
         for kind, key in (("data", "data"), ("video", f"videos/{HEAD}"), ("episodes", "meta/episodes")):
             if last is None:
                 self.next_file[kind] = (0, 0)
@@ -161,11 +163,12 @@ class SegmentWriter:
                 "data/file_index": data_file,
                 "dataset_from_index": int(pos["index"][0]),
                 "dataset_to_index": int(pos["index"][-1]) + 1,
-                f"videos/{HEAD}/chunk_index": video_chunk,
-                f"videos/{HEAD}/file_index": video_file,
-                f"videos/{HEAD}/from_timestamp": video_start,
-                f"videos/{HEAD}/to_timestamp": video_start + episode.duration_s,
             }
+            for key in self.meta.video_keys:
+                row[f"videos/{key}/chunk_index"] = video_chunk
+                row[f"videos/{key}/file_index"] = video_file
+                row[f"videos/{key}/from_timestamp"] = video_start
+                row[f"videos/{key}/to_timestamp"] = video_start + episode.duration_s
             row.update(flatten_dict({"stats": stats}))
             row["meta/episodes/chunk_index"], row["meta/episodes/file_index"] = self.next_file["episodes"]
             rows.append(row)
@@ -179,10 +182,10 @@ class SegmentWriter:
         from lerobot.datasets.feature_utils import get_hf_features_from_features
 
         hf_features = get_hf_features_from_features(self.meta.features)
-        columns = {
-            key: np.concatenate([{**e.columns, **p}[key] for e, p in zip(episodes, positions, strict=True)])
-            for key in hf_features
-        }
+        columns = {}
+        for key in hf_features:
+            parts = [{**e.columns, **p}[key] for e, p in zip(episodes, positions, strict=True)]
+            columns[key] = [v for part in parts for v in part] if isinstance(parts[0], list) else np.concatenate(parts)
         table = arrow_table(columns, hf_features)
         if table is None:  # a feature kind the direct path does not know: Hugging Face's encoder
             table = datasets.Dataset.from_dict(columns, features=hf_features, split="train").with_format("arrow")[:]
@@ -191,17 +194,18 @@ class SegmentWriter:
         pq.write_table(table, path, compression="snappy", use_dictionary=True)
 
     def _write_video(self, episodes: list[EncodedEpisode], file: tuple[int, int]) -> list[float]:
-        """One mp4 for the segment; returns each episode's start time in it."""
+        """One mp4 per video feature for the segment; returns each episode's start time in them."""
         from lerobot.datasets.video_utils import concatenate_video_files
 
-        path = self.root / self.meta.video_path.format(video_key=HEAD, chunk_index=file[0], file_index=file[1])
-        path.parent.mkdir(parents=True, exist_ok=True)
-        with tempfile.TemporaryDirectory(prefix=SEGMENT_TMP, dir=self.root) as tmp:
-            parts = []
-            for i, e in enumerate(episodes):
-                parts.append(Path(tmp) / f"{i:06d}.mp4")
-                parts[-1].write_bytes(e.video)
-            concatenate_video_files(parts, path)
+        for key in self.meta.video_keys:
+            path = self.root / self.meta.video_path.format(video_key=key, chunk_index=file[0], file_index=file[1])
+            path.parent.mkdir(parents=True, exist_ok=True)
+            with tempfile.TemporaryDirectory(prefix=SEGMENT_TMP, dir=self.root) as tmp:
+                parts = []
+                for i, e in enumerate(episodes):
+                    parts.append(Path(tmp) / f"{i:06d}.mp4")
+                    parts[-1].write_bytes(e.videos[key])
+                concatenate_video_files(parts, path)
         durations = [e.duration_s for e in episodes]
         return [float(x) for x in np.concatenate([[0.0], np.cumsum(durations)[:-1]])]
 
@@ -210,8 +214,12 @@ class SegmentWriter:
         from lerobot.datasets.io_utils import write_info, write_stats
 
         meta = self.meta
-        if first:  # video codec details, read from the first video file as LeRobot's writer does
-            meta.update_video_info(HEAD, video_encoder=video_encoder(self.codec))
+        if first:  # video codec details, read from the first video files as LeRobot's writer does
+            for key in meta.video_keys:
+                info = meta.features[key].get("info") or {}
+                is_depth = info.get("is_depth_map", False)
+                encoder = depth_encoder(info.get("camera.mount", "fixed")) if is_depth else video_encoder(self.codec)
+                meta.update_video_info(key, video_encoder=encoder)
         meta.info.total_episodes += len(episodes)
         meta.info.total_frames += sum(len(e) for e in episodes)
         meta.info.total_tasks = len(meta.tasks)
@@ -229,14 +237,24 @@ class SegmentWriter:
 
 def arrow_table(columns: dict[str, np.ndarray], hf_features):
     """The Arrow table ``datasets.Dataset.from_dict(columns, features=hf_features)`` makes, built from the numpy
-    columns directly (Hugging Face's encoder walks every value in Python: 3 ms of a 5 ms episode write); ``None``
-    when a feature is neither a scalar nor a fixed-length list of scalars."""
+    columns directly (Hugging Face's encoder walks every value in Python: 3 ms of a 5 ms episode write), and from
+    image features given as lists of encoded images (PNG bytes, as Hugging Face stores them); ``None`` when a
+    feature is none of these."""
     import datasets
     import pyarrow as pa
 
     schema = hf_features.arrow_schema
     arrays = []
     for key, feature in hf_features.items():
+        if isinstance(feature, datasets.Image) and isinstance(columns[key], list):  # encoded images (PNG bytes)
+            images = columns[key]
+            arrays.append(
+                pa.StructArray.from_arrays(
+                    [pa.array(images, type=pa.binary()), pa.array([None] * len(images), type=pa.string())],
+                    names=["bytes", "path"],
+                )
+            )
+            continue
         values = np.asarray(columns[key])
         if isinstance(feature, datasets.Value):
             arrays.append(pa.array(values.astype(feature.pa_type.to_pandas_dtype(), copy=False)))
@@ -358,9 +376,10 @@ def rollback(root: Path, record: dict) -> list[str]:
     return removed
 
 
-def load_dataset(root: str | Path, repo_id: str = "local/babblegen"):
-    """Open a finished dataset for reading with LeRobot (offline)."""
-    return import_lerobot()(repo_id, root=Path(root))
+def load_dataset(root: str | Path, repo_id: str = "local/babblegen", **kwargs):
+    """Open a finished dataset for reading with LeRobot (offline); ``kwargs`` go to ``LeRobotDataset``
+    (``depth_output_unit="m"``: depth maps in metres)."""
+    return import_lerobot()(repo_id, root=Path(root), **kwargs)
 
 
 def episode_frame_range(ds, episode_index: int) -> tuple[int, int]:

@@ -26,13 +26,95 @@ HEAD = "observation.images.head"
 DEFAULT_VIDEO_CODEC = RunConfig.video_codec  # each codec with LeRobot's own settings for it (`video_encoder`)
 # Columns computed here; index, episode_index and task_index depend on the dataset and are added when written.
 POSITION_COLUMNS = ("index", "episode_index", "task_index")
+KINDS = ("rgb", "depth", "segmentation")
+IMAGE_NAMES = ["height", "width", "channels"]
+# Depth maps: LeRobot's 12-bit lossless HEVC, quantized linearly over 4.095 m from a near limit, so that each code
+# is one of the renderer's millimetres: the depth comes back exactly as rendered from the near limit to 4.095 m
+# beyond it (fixed cameras: 0.2 to 4.295 m; the wrist camera, which sees the gripper up close: 0.02 to 4.115 m).
+# Nearer reads as the near limit, farther (and where nothing is seen) as the far one.
+DEPTH_NEAR_M = {"fixed": 0.2, "head": 0.2, "wrist": 0.02}
 
 
-def features(joint_names: list[str], object_names: list[str], height: int, width: int) -> dict:
-    """The dataset schema (see DESIGN.md): head video, joints, commanded joints, tool point, objects, contacts."""
+def image_key(camera: str, kind: str = "rgb") -> str:
+    """The feature of one camera's images: ``observation.images.<camera>``, ``..._depth`` (LeRobot's
+    convention for depth maps), ``..._segmentation``."""
+    return f"observation.images.{camera}" + ("" if kind == "rgb" else f"_{kind}")
+
+
+def pose_key(camera: str) -> str:
+    """The per-frame pose of a moving camera."""
+    return f"observation.cam2world.{camera}"
+
+
+def camera_features(cameras, task, settings) -> dict:
+    """The image features of ``cameras`` (`WorldSettings.cameras`): each camera's colour video, depth video
+    (LeRobot's ``is_depth_map``, in millimetres) and instance masks (16-bit PNG, an ``ids`` map from id to name),
+    each with the camera's ``intrinsics`` (3x3, pixels) and, for a camera that does not move, ``cam2world``
+    (4x4, OpenCV axes: x right, y down, z forward, in the world frame); a moving camera's pose per frame."""
+    from babblegen.world.cameras import task_instance_names, view_parameters
+
+    out: dict = {}
+    ids = dict(enumerate(task_instance_names(task)))
+    for view in cameras:
+        height, width = view.size(settings)
+        params = view_parameters(view, task, (height, width))
+        info = {"intrinsics": params["intrinsics"].tolist(), "camera.mount": view.mount}
+        if params["cam2world"] is not None:
+            info["cam2world"] = params["cam2world"].tolist()
+        out[image_key(view.name)] = {"dtype": "video", "shape": (height, width, 3), "names": IMAGE_NAMES, "info": info}
+        if view.depth:
+            depth_info = {**info, "is_depth_map": True, "depth_unit": "mm"}
+            out[image_key(view.name, "depth")] = {
+                "dtype": "video",
+                "shape": (height, width, 1),
+                "names": IMAGE_NAMES,
+                "info": depth_info,
+            }
+        if view.segmentation:
+            seg_info = {**info, "ids": {str(k): v for k, v in ids.items()}}
+            out[image_key(view.name, "segmentation")] = {
+                "dtype": "image",
+                "shape": (height, width, 1),
+                "names": IMAGE_NAMES,
+                "info": seg_info,
+            }
+        if params["cam2world"] is None:
+            out[pose_key(view.name)] = {
+                "dtype": "float32",
+                "shape": (16,),
+                "names": [f"m{r}{c}" for r in range(4) for c in range(4)],
+            }
+    return out
+
+
+def image_sources(features: dict) -> dict[str, tuple[str, str]]:
+    """Each image feature's (camera, kind) by :func:`image_key`'s naming."""
+    out = {}
+    for key, ft in features.items():
+        if ft["dtype"] not in ("video", "image") or not key.startswith("observation.images."):
+            continue
+        camera = key.removeprefix("observation.images.")
+        kind = next((k for k in KINDS[1:] if camera.endswith(f"_{k}")), "rgb")
+        out[key] = (camera.removesuffix(f"_{kind}") if kind != "rgb" else camera, kind)
+    return out
+
+
+def features(
+    joint_names: list[str], object_names: list[str], height: int, width: int, cameras=None, task=None, settings=None
+) -> dict:
+    """The dataset schema (see DESIGN.md): the cameras' images (:func:`camera_features`; without ``cameras``, the
+    head camera's colour video alone, as runs stored before cameras were a setting), joints, commanded joints,
+    tool point, objects, contacts."""
     pose_fields = ("x", "y", "z", "qw", "qx", "qy", "qz")
+    if cameras is None:
+        images = {HEAD: {"dtype": "video", "shape": (height, width, 3), "names": IMAGE_NAMES}}
+    else:
+        images = camera_features(cameras, task, settings)
+    poses = {k: v for k, v in images.items() if k.startswith("observation.cam2world.")}
+    images = {k: v for k, v in images.items() if k not in poses}
     return {
-        HEAD: {"dtype": "video", "shape": (height, width, 3), "names": ["height", "width", "channels"]},
+        **images,
+        **poses,
         "observation.state": {"dtype": "float32", "shape": (len(joint_names),), "names": list(joint_names)},
         "action": {"dtype": "float32", "shape": (len(joint_names),), "names": list(joint_names)},
         "observation.ee_pos": {"dtype": "float32", "shape": (3,), "names": ["x", "y", "z"]},
@@ -58,16 +140,24 @@ def with_default_features(feats: dict) -> dict:
 
 @dataclass
 class EncodedEpisode:
-    """One episode ready to append: its per-frame columns, its head-camera video (mp4 bytes) and the episode
-    statistics of everything but the position columns, as LeRobot's writer computes them."""
+    """One episode ready to append: its per-frame columns (an image feature's as PNG bytes per frame), its
+    videos (mp4 bytes per video feature), their duration and the episode statistics of everything but the
+    position columns, as LeRobot's writer computes them."""
 
-    columns: dict[str, np.ndarray]
-    video: bytes
+    columns: dict[str, np.ndarray | list[bytes]]
+    videos: dict[str, bytes]
     duration_s: float
     stats: dict[str, dict[str, np.ndarray]]
 
     def __len__(self) -> int:
         return len(self.columns["frame_index"])
+
+
+def camera_images(frames: Frames, camera: str, kind: str) -> np.ndarray:
+    """One camera's images of one kind: (T, H, W, 3) uint8 colour, (T, H, W) uint16 mm depth or uint8 ids."""
+    if camera == "head" and kind == "rgb":
+        return frames.images
+    return frames.views[camera][kind]
 
 
 def frame_columns(frames: Frames, fps: int, features: dict) -> dict[str, np.ndarray]:
@@ -81,6 +171,9 @@ def frame_columns(frames: Frames, fps: int, features: dict) -> dict[str, np.ndar
         "observation.environment_state": frames.object_poses.reshape(n, -1),
         "observation.contacts": frames.contacts,
     }
+    for key in features:
+        if key.startswith("observation.cam2world."):
+            recorded[key] = frames.camera_poses[key.removeprefix("observation.cam2world.")].reshape(n, 16)
     columns = {k: np.asarray(v, dtype=features[k]["dtype"]) for k, v in recorded.items()}
     columns["timestamp"] = np.arange(n) / fps
     columns["frame_index"] = np.arange(n)
@@ -107,16 +200,91 @@ def video_encoder(codec: str):
     return RGBEncoderConfig(vcodec=codec, crf=CRF[codec], preset=PRESET.get(codec))
 
 
+def depth_encoder(mount: str = "fixed"):
+    """LeRobot's depth-map encoder (12-bit lossless HEVC) over the range of :data:`DEPTH_NEAR_M`."""
+    from lerobot.configs.video import DEPTH_QMAX, DepthEncoderConfig
+
+    near = DEPTH_NEAR_M[mount]
+    return DepthEncoderConfig(
+        depth_min=near,
+        depth_max=round(near + DEPTH_QMAX / 1000.0, 6),
+        use_log=False,
+        extra_options={"x265-params": X265_DEPTH_PARAMS},
+    )
+
+
+# LeRobot's lossless 12-bit HEVC, with three changes: a closed GOP (with x265's default open GOP, LeRobot's seeking
+# decoder skipped frames after an episode boundary in a concatenated file, FrameTimestampError, on the files of
+# LeRobot's own writer too), one thread (the workers have a core each), and no x265 info lines on the console.
+# x265's "ultrafast" preset encoded 128x128 depth maps in a third of the time but took 2.5x the bytes, and
+# gained nothing measurable in a run's episodes per second (benchmarks/bench_views.py): LeRobot's preset stays.
+X265_DEPTH_PARAMS = "lossless=1:open-gop=0:pools=1:frame-threads=1:log-level=error"
+
+
+def encode_depth(depth_mm: np.ndarray, fps: int, mount: str = "fixed") -> tuple[bytes, float]:
+    """Encode (T, H, W) uint16 millimetre depth maps as LeRobot's ``encode_video_frames`` does a depth stream
+    (its ``quantize_depth``, :func:`depth_encoder`'s settings), from memory. Returns mp4 bytes and duration."""
+    from lerobot.datasets.depth_utils import quantize_depth
+
+    encoder = depth_encoder(mount)
+
+    def frame(image: np.ndarray):
+        return quantize_depth(
+            np.ascontiguousarray(image, dtype=np.uint16),
+            depth_min=encoder.depth_min,
+            depth_max=encoder.depth_max,
+            shift=encoder.shift,
+            use_log=encoder.use_log,
+            pix_fmt=encoder.pix_fmt,
+            video_backend="pyav",
+        )
+
+    return _encode(depth_mm, fps, encoder, frame)
+
+
+def encode_png(images: np.ndarray) -> list[bytes]:
+    """(T, H, W) instance ids as 16-bit grey PNG bytes, as LeRobot's image writer saves a single-channel image
+    feature's frames (it takes uint16 or float32 for those); ``LeRobotDataset`` reads them back as the ids."""
+    import io
+
+    from PIL import Image
+
+    out = []
+    for image in images:
+        buf = io.BytesIO()
+        Image.fromarray(np.ascontiguousarray(image, dtype=np.uint16)).save(buf, format="PNG", compress_level=1)
+        out.append(buf.getvalue())
+    return out
+
+
+def as_lerobot_reads_for_stats(ids: np.ndarray) -> np.ndarray:
+    """(T, H, W) ids as LeRobot's statistics read a 16-bit grey PNG frame: converted to RGB by PIL (so the
+    masks' statistics are LeRobot's own, though they say little: an id is a name, not a brightness)."""
+    from PIL import Image
+
+    return np.stack([np.asarray(Image.fromarray(f.astype(np.uint16)).convert("RGB")) for f in ids])
+
+
 def encode_video(images: np.ndarray, fps: int, codec: str = DEFAULT_VIDEO_CODEC) -> tuple[bytes, float]:
     """Encode (T, H, W, 3) uint8 frames as LeRobot's ``encode_video_frames`` does in its recording path (the
     same PyAV calls, :func:`video_encoder`'s settings), from memory instead of PNG files: each frame goes to PyAV
     as an array rather than a PIL image (the same bytes, less copying). Returns the mp4 bytes and their duration
     in seconds."""
+    import av
+
+    return _encode(
+        images,
+        fps,
+        video_encoder(codec),
+        lambda image: av.VideoFrame.from_ndarray(np.ascontiguousarray(image), "rgb24"),
+    )
+
+
+def _encode(images: np.ndarray, fps: int, encoder, to_frame) -> tuple[bytes, float]:
     _quiet_codecs()
     import av
     from lerobot.datasets.video_utils import get_video_duration_in_s
 
-    encoder = video_encoder(codec)
     tmp = Path(tempfile.mkdtemp(prefix="babblegen-video-"))
     path = tmp / "episode.mp4"
     try:
@@ -126,7 +294,7 @@ def encode_video(images: np.ndarray, fps: int, codec: str = DEFAULT_VIDEO_CODEC)
             stream.pix_fmt = encoder.pix_fmt
             stream.height, stream.width = images.shape[1:3]
             for image in images:
-                packet = stream.encode(av.VideoFrame.from_ndarray(np.ascontiguousarray(image), format="rgb24"))
+                packet = stream.encode(to_frame(image))
                 if packet:
                     output.mux(packet)
             packet = stream.encode()
@@ -138,13 +306,23 @@ def encode_video(images: np.ndarray, fps: int, codec: str = DEFAULT_VIDEO_CODEC)
 
 
 def encode_episode(frames: Frames, fps: int, features: dict, codec: str = DEFAULT_VIDEO_CODEC) -> EncodedEpisode:
-    """Video, columns and statistics of one executed movement (``features``: the schema as LeRobot stores
+    """Videos, columns and statistics of one executed movement (``features``: the schema as LeRobot stores
     it, :func:`with_default_features`)."""
     columns = frame_columns(frames, fps, features)
-    video, duration = encode_video(frames.images, fps, codec)
     stats = numeric_stats(columns, features)
-    stats[HEAD] = image_stats(frames.images)
-    return EncodedEpisode(columns, video, duration, stats)
+    videos, duration = {}, None
+    for key, (camera, kind) in image_sources(features).items():
+        images = camera_images(frames, camera, kind)
+        if kind == "rgb":
+            videos[key], duration = encode_video(images, fps, codec)
+            stats[key] = image_stats(images)
+        elif kind == "depth":
+            videos[key], _ = encode_depth(images, fps, features[key]["info"].get("camera.mount", "fixed"))
+            stats[key] = image_stats(images[..., None], scale=1.0)
+        else:
+            columns[key] = encode_png(images)
+            stats[key] = image_stats(as_lerobot_reads_for_stats(images))
+    return EncodedEpisode(columns, videos, duration, stats)
 
 
 class EpisodeEncoder:
@@ -157,9 +335,11 @@ class EpisodeEncoder:
         return encode_episode(frames, self.fps, self.features, self.codec)
 
     def warm_up(self) -> None:
-        """Import LeRobot and start the encoder once (seconds), so that no attempt's timing includes it."""
+        """Import LeRobot and start the encoders once (seconds), so that no attempt's timing includes it."""
         height, width = self.features[HEAD]["shape"][:2]
         encode_video(np.zeros((2, height, width, 3), dtype=np.uint8), self.fps, self.codec)
+        if any(kind == "depth" for _, kind in image_sources(self.features).values()):
+            encode_depth(np.zeros((2, height, width), dtype=np.uint16), self.fps)
 
 
 def _quiet_codecs() -> None:

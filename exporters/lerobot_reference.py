@@ -10,8 +10,17 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
+
 from babblegen.exporters.lerobot import import_lerobot
-from babblegen.exporters.lerobot_encoding import DEFAULT_VIDEO_CODEC, ENCODER_THREADS, HEAD, video_encoder
+from babblegen.exporters.lerobot_encoding import (
+    DEFAULT_VIDEO_CODEC,
+    ENCODER_THREADS,
+    camera_images,
+    depth_encoder,
+    image_sources,
+    video_encoder,
+)
 from babblegen.world.rollout import Frames
 
 
@@ -34,6 +43,7 @@ class ReferenceWriter:
             robot_type=robot_type,
             use_videos=True,
             rgb_encoder=video_encoder(codec),
+            depth_encoder=depth_encoder("fixed"),
             encoder_threads=ENCODER_THREADS,
         )
         return cls(root, repo_id, ds)
@@ -43,10 +53,14 @@ class ReferenceWriter:
         index = self.ds.meta.total_episodes
         n_obj = frames.object_poses.shape[1]
         env_state = frames.object_poses.reshape(len(frames), 7 * n_obj)
+        images = {}
+        for key, (camera, kind) in image_sources(self.ds.meta.features).items():
+            got = camera_images(frames, camera, kind)
+            images[key] = got if kind == "rgb" else got[..., None].astype(np.uint16)
         for t in range(len(frames)):
             self.ds.add_frame(
                 {
-                    HEAD: frames.images[t],
+                    **{key: value[t] for key, value in images.items()},
                     "observation.state": frames.state[t],
                     "action": frames.action[t],
                     "observation.ee_pos": frames.ee_pos[t],

@@ -72,18 +72,22 @@ def numeric_stats(columns: dict[str, np.ndarray], features: dict) -> dict[str, d
     return out
 
 
-def _channel_counts(chw: np.ndarray) -> np.ndarray:
-    """(3, 256) counts of each channel's pixel values over (N, 3, H, W) uint8 frames: PIL's histogram of the
-    frames stacked into one image, three times faster than ``np.bincount`` (which widens every pixel to 64 bits)."""
-    from PIL import Image
+def _channel_counts(chw: np.ndarray, levels: int) -> np.ndarray:
+    """(C, levels) counts of each channel's pixel values over (N, C, H, W) integer frames. For colour frames,
+    PIL's histogram of the frames stacked into one image, three times faster than ``np.bincount`` (which widens
+    every pixel to 64 bits)."""
+    if chw.dtype == np.uint8 and chw.shape[1] == 3:
+        from PIL import Image
 
-    hwc = np.ascontiguousarray(chw.transpose(0, 2, 3, 1)).reshape(-1, chw.shape[3], 3)
-    return np.asarray(Image.fromarray(hwc).histogram(), dtype=np.int64).reshape(3, 256)
+        hwc = np.ascontiguousarray(chw.transpose(0, 2, 3, 1)).reshape(-1, chw.shape[3], 3)
+        return np.asarray(Image.fromarray(hwc).histogram(), dtype=np.int64).reshape(3, 256)
+    return np.stack([np.bincount(chw[:, c].ravel(), minlength=levels) for c in range(chw.shape[1])])
 
 
-def image_stats(images: np.ndarray) -> dict[str, np.ndarray]:
-    """The episode statistics LeRobot's ``compute_episode_stats`` records for a video feature (its sampled
-    frames, per channel, scaled to [0, 1]), computed from per-channel counts of the 256 pixel values.
+def image_stats(images: np.ndarray, scale: float = 255.0) -> dict[str, np.ndarray]:
+    """The episode statistics LeRobot's ``compute_episode_stats`` records for an image or video feature
+    ((T, H, W, C) uint8 or uint16 frames: its sampled frames, per channel, divided by ``scale``: 255 for colour
+    and masks, 1 for depth maps, which stay in their unit), computed from per-channel counts of the pixel values.
 
     LeRobot feeds every sampled pixel to a 5,000-bin running histogram (2-3 ms per 128x128 frame); the same
     histogram, minimum, maximum and quantiles follow exactly from the counts, at a fraction of the cost. The mean
@@ -97,8 +101,9 @@ def image_stats(images: np.ndarray) -> dict[str, np.ndarray]:
     )
 
     chw = np.stack([auto_downsample_height_width(images[i].transpose(2, 0, 1)) for i in sample_indices(len(images))])
-    values = np.arange(256, dtype=np.float32)
-    counts = _channel_counts(chw)
+    levels = 256 if chw.dtype == np.uint8 else 65536
+    values = np.arange(levels, dtype=np.float32)
+    counts = _channel_counts(chw, levels)
     total = int(counts[0].sum())
     running = RunningQuantileStats()
     running._count = total
@@ -116,4 +121,4 @@ def image_stats(images: np.ndarray) -> dict[str, np.ndarray]:
     stats = running.get_statistics()
     stats["count"] = np.array([len(chw)])
     stats = _reshape_stats_by_axis(stats, (0, 2, 3), True, chw.shape)
-    return {k: v if k == "count" else np.squeeze(v / 255.0, axis=0) for k, v in stats.items()}
+    return {k: v if k == "count" else np.squeeze(v / scale, axis=0) for k, v in stats.items()}

@@ -532,3 +532,70 @@ def test_an_error_in_the_coordinator_stops_the_workers_without_their_tracebacks(
     assert "EOFError" not in printed and "ConnectionResetError" not in printed and "leaked" not in printed, printed
     ds = load_dataset(out, read_run_info(out)["repo_id"])
     assert ds.meta.total_episodes == sum(r["feasible"] for r in read_attempts(out)) > 0
+
+
+def _config_from_flags(*flags: str, toml: str | None = None, tmp_path: Path | None = None) -> RunConfig:
+    """The configuration `generate` would run with (defaults < TOML < flags), without running it."""
+    from babblegen.cli import _camera_overrides, _overrides, build_parser
+    from babblegen.config import load_toml, merge
+
+    args = build_parser().parse_args(["generate", "--out", "x", *flags])
+    data = {}
+    if toml is not None:
+        path = tmp_path / "run.toml"
+        path.write_text(toml)
+        data = load_toml(path)
+    data = merge(data, _overrides(args))
+    _camera_overrides(args, data)
+    return RunConfig.from_dict(data)
+
+
+def test_cameras_by_flag_and_by_file(tmp_path):
+    default = RunConfig().world.cameras
+    assert [(v.name, v.depth, v.segmentation) for v in default] == [("head", False, True)]
+    views = _config_from_flags("--cameras", "front,wrist", "--depth").world.cameras
+    assert [(v.name, v.mount, v.depth, v.segmentation) for v in views] == [
+        ("head", "head", True, True),  # the behaviour camera is always recorded
+        ("front", "fixed", True, True),
+        ("wrist", "wrist", True, True),
+    ]
+    flat = _config_from_flags("--cameras", "front", "--no-segmentation").world.cameras
+    assert [v.name for v in flat] == ["head", "front"] and not any(v.segmentation or v.depth for v in flat)
+    assert [v.depth for v in _config_from_flags("--depth").world.cameras] == [True]
+    toml = (
+        '[[world.cameras]]\nname = "head"\nmount = "head"\ndepth = true\n\n'
+        '[[world.cameras]]\nname = "top"\neye = [0.75, -0.1, 2.2]\ntarget = [0.75, -0.1, 0.7]\nfov = 0.9\n'
+        "width = 96\nheight = 64\n"
+    )
+    from_file = _config_from_flags(toml=toml, tmp_path=tmp_path).world.cameras
+    top = from_file[1]
+    assert (top.name, top.eye, top.width, top.height, top.depth) == ("top", (0.75, -0.1, 2.2), 96, 64, False)
+    assert from_file[0].depth and not from_file[0].segmentation
+
+
+@pytest.mark.parametrize(
+    ("flags", "toml", "message"),
+    [
+        (["--cameras", "ceiling"], None, "unknown camera 'ceiling'"),
+        ([], '[[world.cameras]]\nname = "front"\neye = [1, 0, 1]\ntarget = [0, 0, 0]\n', "must include 'head'"),
+        ([], '[[world.cameras]]\nname = "head"\nmount = "head"\n[[world.cameras]]\nname = "top"\n', "needs an eye"),
+    ],
+)
+def test_bad_cameras_exit_2_before_anything_is_written(tmp_path, capsys, flags, toml, message):
+    out = tmp_path / "ds"
+    extra = []
+    if toml is not None:
+        (tmp_path / "c.toml").write_text(toml)
+        extra = ["--config", str(tmp_path / "c.toml")]
+    assert main(["generate", "--out", str(out), *flags, *extra]) == 2
+    assert message in capsys.readouterr().err
+    assert not out.exists()
+
+
+def test_a_run_stored_before_cameras_were_settings_resumes_with_the_head_camera_alone():
+    stored = RunConfig().to_dict()
+    del stored["world"]["cameras"]
+    views = resumed_config(stored).world.cameras
+    assert [(v.name, v.depth, v.segmentation) for v in views] == [("head", False, False)]
+    with pytest.raises(ConfigError, match="cannot change"):
+        resumed_config(RunConfig().to_dict(), {"cameras": []})

@@ -24,9 +24,48 @@ TASK = "noveb babbling in a test"
 LENGTHS = [7, 12, 24, 3, 15]  # a 3-frame episode too: the shortest movement LeRobot's stats accept
 
 
-def synthetic_frames(length: int, seed: int) -> Frames:
+def with_views(frames: Frames, seed: int) -> Frames:
+    """The head camera's depth and masks and a second camera's colour, depth and masks: depth in whole
+    millimetres, most within the encoded range (0.2 to 4.295 m), some nearer, farther and nothing seen (0), and
+    ids of the scene's instances."""
+    rng = np.random.default_rng(100 + seed)
+    n = len(frames)
+
+    def depth() -> np.ndarray:
+        yy, xx = np.mgrid[0:SIDE, 0:SIDE]
+        d = np.stack([600 + 20 * yy + 7 * xx + 13 * t + rng.integers(0, 3, (SIDE, SIDE)) for t in range(n)])
+        d[:, :4] = 0  # nothing seen
+        d[:, 4:6, :8] = 150  # nearer than the range
+        d[:, 6:8, :8] = 5000  # beyond it
+        return d.astype(np.uint16)
+
+    def ids() -> np.ndarray:
+        return (np.arange(SIDE * SIDE).reshape(SIDE, SIDE)[None] // 300 + rng.integers(0, 2, (n, 1, 1))) % 8
+
+    front = np.roll(frames.images, 5, axis=2)
+    frames.views = {
+        "head": {"depth": depth(), "segmentation": ids().astype(np.uint8)},
+        "front": {"rgb": front, "depth": depth(), "segmentation": ids().astype(np.uint8)},
+    }
+    return frames
+
+
+def schema(layout: str) -> dict:
+    if layout == "head":
+        return features(JOINTS, OBJECTS, SIDE, SIDE)
+    from babblegen.tasks import get_task
+    from babblegen.world.settings import WorldSettings, cameras_from_names
+
+    cameras = cameras_from_names(["front"], depth=True, segmentation=True)  # head and front, every kind
+    settings = WorldSettings(camera_width=SIDE, camera_height=SIDE, cameras=cameras)
+    return features(JOINTS, OBJECTS, SIDE, SIDE, settings.cameras, get_task("noveb_tabletop"), settings)
+
+
+def synthetic_frames(length: int, seed: int, layout: str = "head") -> Frames:
     """Smoothly moving colour ramps (video-like, so the encoder behaves as on camera frames) and random
-    recordings."""
+    recordings (with ``layout`` "views", other cameras and kinds too: :func:`with_views`)."""
+    if layout == "views":
+        return with_views(synthetic_frames(length, seed), seed)
     rng = np.random.default_rng(seed)
     yy, xx = np.mgrid[0:SIDE, 0:SIDE]
     images = np.stack(
@@ -49,14 +88,15 @@ def synthetic_frames(length: int, seed: int) -> Frames:
     )
 
 
-@pytest.fixture(scope="module", params=VIDEO_CODECS)
+@pytest.fixture(scope="module", params=[(c, "head") for c in VIDEO_CODECS] + [("h264", "views")], ids=str)
 def datasets(tmp_path_factory, request):
     """The same five episodes through LeRobot's writer, and through the segment writer in two segments with a
-    resume between them that rolls back an uncommitted segment; once per video codec."""
-    codec = request.param
+    resume between them that rolls back an uncommitted segment; once per video codec with the head camera's
+    colour alone, and once with two cameras' colour, depth and masks."""
+    codec, layout = request.param
     root = tmp_path_factory.mktemp("writers")
-    episodes = [synthetic_frames(n, seed) for seed, n in enumerate(LENGTHS)]
-    feats = features(JOINTS, OBJECTS, SIDE, SIDE)
+    episodes = [synthetic_frames(n, seed, layout) for seed, n in enumerate(LENGTHS)]
+    feats = schema(layout)
 
     reference = ReferenceWriter.create(root / "reference", "test/reference", FPS, feats, "pr2_arm", codec)
     for frames in episodes:
@@ -70,7 +110,7 @@ def datasets(tmp_path_factory, request):
     writer.flush()
     committed = snapshot(ours)
     for seed in (7, 8):  # written after the commit point, then lost in a crash
-        writer.add(encode_episode(synthetic_frames(5, seed), FPS, writer.features, codec), TASK)
+        writer.add(encode_episode(synthetic_frames(5, seed, layout), FPS, writer.features, codec), TASK)
     writer.flush()
     rollback(ours, committed)
     writer = SegmentWriter.reopen(ours, "test/segments", codec)
@@ -84,6 +124,7 @@ def test_every_frame_and_image_is_the_same(datasets):
     reference, ours = datasets
     assert len(ours) == len(reference) == sum(LENGTHS)
     originals = np.concatenate([synthetic_frames(n, seed).images for seed, n in enumerate(LENGTHS)]) / 255
+    shifted = np.roll(originals, 5, axis=2)  # the second camera's (views layout)
     deterministic = json.loads((ours.root / "meta/info.json").read_text())["features"][HEAD]["info"]["video.codec"]
     deterministic = deterministic != "h264"
     for i in range(len(reference)):
@@ -92,11 +133,11 @@ def test_every_frame_and_image_is_the_same(datasets):
         for key, value in want.items():
             if key == "task":
                 assert got[key] == value == TASK
-            elif key != HEAD or deterministic:  # the decoded video frames too: same encoder, same settings
+            elif key not in (HEAD, "observation.images.front") or deterministic:  # same encoder, same settings
                 np.testing.assert_array_equal(np.asarray(got[key]), np.asarray(value), err_msg=f"frame {i} {key}")
             else:  # x264 encodes these synthetic frames slightly differently from run to run (not camera frames)
                 image = np.asarray(got[key]).transpose(1, 2, 0)
-                errors = np.abs(originals - image).mean(axis=(1, 2, 3))
+                errors = np.abs((originals if key == HEAD else shifted) - image).mean(axis=(1, 2, 3))
                 assert errors.argmin() == i and errors[i] < 0.03, f"frame {i}: {errors[i]:.3f}"
                 np.testing.assert_allclose(image, np.asarray(value).transpose(1, 2, 0), atol=0.1)
 
@@ -111,6 +152,8 @@ def test_the_episode_table_matches(datasets):
     # our episodes sit in two segment files, LeRobot's in one: each episode spans the same video time
     video = "videos/observation.images.head"
     durations = [np.subtract(e[f"{video}/to_timestamp"], e[f"{video}/from_timestamp"]) for e in (want, got)]
+    for key in reference.meta.video_keys:  # every video alike
+        assert got[f"videos/{key}/from_timestamp"] == got[f"{video}/from_timestamp"]
     np.testing.assert_allclose(durations[1], durations[0], atol=1e-9)
     np.testing.assert_allclose(durations[0], np.asarray(LENGTHS) / FPS, atol=1e-9)
     assert got["data/file_index"] == [0, 0, 1, 1, 1]  # a new file per segment, the rolled-back one reused
@@ -127,8 +170,36 @@ def test_info_and_statistics_match(datasets):
         for name, value in per_stat.items():  # aggregated in a different order: rounding differences only
             # except the image mean and std, which LeRobot accumulates in float32 over every pixel and babblegen
             # computes exactly from pixel-value counts (exporters/lerobot_encoding.image_stats)
-            rtol = 1e-4 if key == "observation.images.head" and name in ("mean", "std") else 1e-9
+            rtol = 1e-4 if key.startswith("observation.images.") and name in ("mean", "std") else 1e-9
             np.testing.assert_allclose(stats[1][key][name], value, rtol=rtol, atol=1e-12, err_msg=f"{key} {name}")
+
+
+def test_depth_and_masks_come_back_as_rendered(datasets):
+    """Depth in millimetres within the encoded range comes back exactly (``depth_output_unit="m"``: in metres),
+    clipped outside it; the ids exactly (stored as 16-bit PNG, read back as the ids)."""
+    _, ours = datasets
+    if "observation.images.front_depth" not in ours.meta.features:
+        pytest.skip("the head camera's colour alone")
+    from babblegen.exporters.lerobot import load_dataset
+
+    in_metres = load_dataset(ours.root, "test/segments", depth_output_unit="m")
+    frames = [synthetic_frames(n, seed, "views") for seed, n in enumerate(LENGTHS)]
+    info = ours.meta.features["observation.images.front_depth"]["info"]
+    assert info["is_depth_map"] and info["depth_unit"] == "mm" and info["video.depth_min"] == 0.2
+    ids = ours.meta.features["observation.images.front_segmentation"]["info"]["ids"]
+    assert ids["0"] == "background" and ids["3"] == "robot" and ids["4"] == OBJECTS[0]
+    i = 0
+    for f in frames:
+        for t in range(len(f)):
+            for camera in ("head", "front"):
+                want = np.clip(f.views[camera]["depth"][t], 200, 4295)
+                got = np.asarray(ours[i][f"observation.images.{camera}_depth"])[0]
+                np.testing.assert_array_equal(np.rint(got), want, err_msg=f"frame {i} {camera} depth (mm)")
+                metres = np.asarray(in_metres[i][f"observation.images.{camera}_depth"])[0]
+                np.testing.assert_allclose(metres, want / 1000.0, atol=1e-6)
+                mask = np.asarray(ours[i][f"observation.images.{camera}_segmentation"])[0]
+                np.testing.assert_array_equal(mask, f.views[camera]["segmentation"][t])
+            i += 1
 
 
 def test_the_recorded_codec_is_the_one_asked_for_and_a_resume_cannot_switch_it(datasets, tmp_path):

@@ -38,6 +38,13 @@ class Frames:
     time: np.ndarray | None = None  # (T,) simulated seconds since the movement began; t / fps by construction
     # (2, H, W, 3): frames 0 and T - 1, rendered with the movement when the others are deferred (`World.rollout`)
     end_images: np.ndarray | None = None
+    # every other image of the episode, by camera and kind, once rendered: "head" -> {"depth": (T, H, W) uint16 mm,
+    # "segmentation": (T, H, W) uint8 instance ids}, "<other>" -> {"rgb": (T, H, W, 3) uint8, "depth", ...}
+    views: dict[str, dict[str, np.ndarray]] | None = None
+    # the head camera's depth and ids at frames 0 and T - 1, rendered with the movement (as ``end_images``)
+    end_views: dict[str, np.ndarray] | None = None
+    # (T, 4, 4) OpenCV cam2world per frame of each camera that moves (a wrist camera)
+    camera_poses: dict[str, np.ndarray] | None = None
 
     def __len__(self) -> int:
         return len(self.state)

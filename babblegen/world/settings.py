@@ -2,9 +2,65 @@
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field, replace
+from typing import Any
 
 MAX_CAMERA_SIDE = 2048  # pixels: larger frames exhaust the CPU renderer and the video encoder
+MOUNTS = ("head", "fixed", "wrist")
+MODALITIES = ("depth", "segmentation")
+
+
+@dataclass(frozen=True)
+class CameraView:
+    """One camera a run records. ``mount``: ``"head"`` is the task's head camera, the behaviour camera whose
+    last frame the search hashes (always recorded, under the name ``head``); ``"fixed"`` stands at ``eye``
+    looking at ``target`` (world frame, metres); ``"wrist"`` rides on the tool link, looking along the gripper,
+    so its extrinsics change every frame. ``width`` and ``height`` default to the run's camera size; ``fov`` is
+    the vertical field of view (radians). ``depth`` and ``segmentation`` add those images to its colour ones."""
+
+    name: str
+    mount: str = "fixed"
+    eye: tuple[float, float, float] | None = None
+    target: tuple[float, float, float] | None = None
+    fov: float = 1.0
+    width: int | None = None
+    height: int | None = None
+    depth: bool = False
+    segmentation: bool = False
+
+    def __post_init__(self) -> None:
+        if not self.name.isidentifier():
+            raise ValueError(f"a camera name must be a plain identifier (letters, digits, _), got {self.name!r}")
+        if self.mount not in MOUNTS:
+            raise ValueError(f"camera {self.name!r}: unknown mount {self.mount!r}; choose one of {', '.join(MOUNTS)}")
+        if (self.mount == "head") != (self.name == "head"):
+            raise ValueError("the camera named 'head' is the task's head camera (mount 'head'), and only it")
+        if self.mount == "fixed":
+            if self.eye is None or self.target is None:
+                raise ValueError(f"fixed camera {self.name!r} needs an eye and a target (x, y, z in metres)")
+            object.__setattr__(self, "eye", tuple(float(v) for v in self.eye))
+            object.__setattr__(self, "target", tuple(float(v) for v in self.target))
+            if len(self.eye) != 3 or len(self.target) != 3 or self.eye == self.target:
+                raise ValueError(f"camera {self.name!r}: eye and target must be two different (x, y, z) points")
+        if not 0.05 < float(self.fov) < 3.0:
+            raise ValueError(f"camera {self.name!r}: fov must be in (0.05, 3.0) radians, got {self.fov}")
+        for side in (self.width, self.height):
+            if side is not None and not 16 <= side <= MAX_CAMERA_SIDE:
+                raise ValueError(f"camera {self.name!r}: sides must be 16 to {MAX_CAMERA_SIDE} pixels, got {side}")
+
+    def size(self, settings: WorldSettings) -> tuple[int, int]:
+        """(height, width) in pixels."""
+        return (self.height or settings.camera_height, self.width or settings.camera_width)
+
+
+# The cameras `--cameras` names. "front" faces the robot across the table from above its far edge, and sees the
+# table top, the arm and the floor where objects land in front of and beside the table.
+CAMERA_PRESETS: dict[str, CameraView] = {
+    "head": CameraView("head", mount="head"),
+    "front": CameraView("front", eye=(1.75, -0.1, 1.45), target=(0.75, -0.1, 0.62), fov=1.05),
+    "side": CameraView("side", eye=(0.75, -1.65, 1.35), target=(0.75, -0.1, 0.62), fov=1.05),
+    "wrist": CameraView("wrist", mount="wrist", fov=1.4),
+}
 
 
 @dataclass(frozen=True)
@@ -26,8 +82,17 @@ class WorldSettings:
     ik_tolerance: float = 0.005  # metres
     ik_seeds: int = 8
     collision_margin: float = 0.01  # metres kept from table, floor and robot body
+    # what is recorded: the head camera (the behaviour camera, always) and any others, each with its modalities
+    cameras: tuple[CameraView, ...] = field(default_factory=lambda: default_cameras())
 
     def __post_init__(self):
+        views = tuple(v if isinstance(v, CameraView) else CameraView(**dict(v)) for v in self.cameras)
+        object.__setattr__(self, "cameras", views)
+        names = [v.name for v in views]
+        if "head" not in names:
+            raise ValueError("the cameras must include 'head', the behaviour camera the search looks through")
+        if len(set(names)) != len(names):
+            raise ValueError(f"camera names must differ, got {names}")
         if self.control_freq % self.fps or self.sim_freq % self.control_freq:
             raise ValueError("need fps | control_freq | sim_freq (e.g. 10, 20, 100)")
         if min(self.camera_width, self.camera_height) < 16:
@@ -40,3 +105,37 @@ class WorldSettings:
 
     def to_dict(self) -> dict:
         return asdict(self)
+
+    @property
+    def head(self) -> CameraView:
+        return next(v for v in self.cameras if v.name == "head")
+
+
+def default_cameras() -> tuple[CameraView, ...]:
+    """The head camera's colour and instance masks. Chosen by cost (README, "Views"; benchmarks/bench_views.py):
+    masks cost 21 % of a run's executed episodes per second on 2 cores, depth 61 %, a second camera 58 %, so
+    depth (``--depth``) and the front view (``--cameras head,front``) are one flag away."""
+    return (replace(CAMERA_PRESETS["head"], segmentation=True),)
+
+
+def cameras_from_names(names: list[str], depth: bool | None, segmentation: bool | None) -> list[dict[str, Any]]:
+    """``--cameras head,front`` with ``--depth`` / ``--segmentation`` (None: what the default cameras record)."""
+    unknown = [n for n in names if n not in CAMERA_PRESETS]
+    if unknown:
+        raise ValueError(f"unknown camera {unknown[0]!r}; choose from {', '.join(CAMERA_PRESETS)}")
+    defaults = {v.name: v for v in default_cameras()}
+    kinds = {"depth": defaults["head"].depth, "segmentation": defaults["head"].segmentation}
+    views = []
+    for name in dict.fromkeys(["head", *names]):
+        view = defaults.get(name, replace(CAMERA_PRESETS[name], **kinds))  # the others: the head camera's kinds
+        view = replace(
+            view,
+            depth=view.depth if depth is None else depth,
+            segmentation=view.segmentation if segmentation is None else segmentation,
+        )
+        views.append(asdict(view))
+    return views
+
+
+# Stored before cameras were a setting: the head camera's colour, nothing else.
+LEGACY_CAMERAS = ({"name": "head", "mount": "head"},)

@@ -18,6 +18,7 @@ import sapien
 import torch
 
 from babblegen.scene import TaskSpec
+from babblegen.world.cameras import CameraRig
 from babblegen.world.collision import Box, SphereCollisionModel
 from babblegen.world.kinematics import ArmKinematics, UrdfModel
 from babblegen.world.planner import JointPlanner
@@ -45,6 +46,7 @@ class World:
             control_mode="pd_joint_pos",
             camera_width=s.camera_width,
             camera_height=s.camera_height,
+            cameras=s.cameras,
             sim_freq=s.sim_freq,
             control_freq=s.control_freq,
         )
@@ -97,6 +99,10 @@ class World:
         self._object_of_body = {body: i for i, body in enumerate(self._object_bodies)}
         self._drive_joints = self._position_drives()
         self._camera = self.sim.scene.sensors["head"]
+        self.cameras = CameraRig(self.sim, self.task, self.settings.cameras)
+        self._others = [v.name for v in self.settings.cameras if v.name != "head"]
+        self._moving = [v.name for v in self.settings.cameras if v.mount == "wrist"]
+        self._head_extras = self.settings.head.depth or self.settings.head.segmentation
 
     def _position_drives(self) -> list | None:
         """The simulator's joints that the agent's joint-position controller drives, in the order of its action,
@@ -242,12 +248,27 @@ class World:
         collections that would otherwise walk all of those every time: 0.14 s of a 0.17 s reset, a third of
         a typical rollout (``benchmarks/bench_pipeline.py`` shows the reset's share)."""
         self._render()
+        self._render_views(self._others, head=True)  # every camera and kind once
         gc.freeze()
 
     def _render(self) -> np.ndarray:
+        """The head camera's colour image of the scene as it is now."""
         self.sim.scene.update_render()
         self._camera.capture()
         return self._camera.get_obs(rgb=True, depth=False, segmentation=False, position=False)["rgb"][0].numpy()
+
+    def _render_head(self) -> dict[str, np.ndarray]:
+        """The head camera's colour and, if recorded, depth and ids, from one pass."""
+        self.sim.scene.update_render()
+        self._camera.capture()
+        return self.cameras.read("head")
+
+    def _render_views(self, names: list[str], head: bool) -> dict[str, dict[str, np.ndarray]]:
+        """Every named camera's images (the head camera's too with ``head``) of the scene as it is now."""
+        self.sim.scene.update_render()
+        names = (["head"] if head else []) + names
+        self.cameras.capture(names)
+        return {name: self.cameras.read(name) for name in names}
 
     def _touching(self) -> np.ndarray:
         """Which objects the arm touches now: a contact between a moving arm link and the object with a point
@@ -320,11 +341,17 @@ class World:
         t_sim = t_render = 0.0
         touched_since = np.zeros(len(self._object_entities), dtype=bool)
 
+        head_ends: list[dict[str, np.ndarray]] = []
+
         def record(step: int, render: bool = False) -> None:
             nonlocal t_render, touched_since
             if render:
                 t0 = time.perf_counter()
-                rec["images"].append(self._render())
+                if self._head_extras:
+                    head_ends.append(self._render_head())
+                    rec["images"].append(head_ends[-1].pop("rgb"))
+                else:
+                    rec["images"].append(self._render())
                 t_render += time.perf_counter() - t0
             rec["state"].append(np.asarray(self._arm.qpos, dtype=np.float32))
             rec["time"].append(step / s.control_freq)
@@ -369,6 +396,8 @@ class World:
 
         ends = np.stack(rec.pop("images"))
         frames = Frames(**{k: np.stack(v) for k, v in rec.items()}, images=None, end_images=ends)
+        if head_ends:
+            frames.end_views = {k: np.stack([e[k] for e in head_ends]) for k in head_ends[0]}
         if not defer_render:
             t_render += self.render_frames(frames)
         final = frames.object_poses[-1].astype(np.float64)
@@ -397,18 +426,40 @@ class World:
 
     def render_frames_stepwise(self, frames: Frames, frames_per_step: int = 4) -> Iterator[None]:
         """`render_frames` a few frames at a time, pausing (``yield``) after each few: the World may run other
-        rollouts in the pauses, since each frame is rendered from its own recorded state."""
+        rollouts in the pauses, since each frame is rendered from its own recorded state. The head camera's
+        first and last frames are the ones rendered with the movement; every other camera renders every frame
+        here, and a moving one records where it was (``frames.camera_poses``)."""
         if frames.images is not None:
             return
-        images = [frames.end_images[0]]
-        for t in range(1, len(frames) - 1):
+        n = len(frames)
+        head = [{"rgb": frames.end_images[0], **{k: v[0] for k, v in (frames.end_views or {}).items()}}]
+        others: dict[str, list[dict[str, np.ndarray]]] = {name: [] for name in self._others}
+        poses: dict[str, list[np.ndarray]] = {name: [] for name in self._moving}
+        for t in range(n):
+            inside = 0 < t < n - 1
+            if not inside and not self._others:
+                continue
             self._pose_scene(frames, t)
-            images.append(self._render())
-            if t % frames_per_step == 0:
+            if not self._others and not self._head_extras:
+                head.append({"rgb": self._render()})
+            else:
+                images = self._render_views(self._others, head=inside)
+                if inside:
+                    head.append(images.pop("head"))
+                for name, got in images.items():
+                    others[name].append(got)
+            for name in self._moving:
+                poses[name].append(self.cameras.parameters(name)["cam2world"])
+            if inside and t % frames_per_step == 0:
                 yield
-        images.append(frames.end_images[-1])
-        frames.images, frames.end_images = np.stack(images), None
-        self._pose_scene(frames, len(frames) - 1)
+        head.append({"rgb": frames.end_images[-1], **{k: v[-1] for k, v in (frames.end_views or {}).items()}})
+        frames.images, frames.end_images = np.stack([h.pop("rgb") for h in head]), None
+        views = {name: {k: np.stack([f[k] for f in got]) for k in got[0]} for name, got in others.items() if got}
+        if head[0]:
+            views["head"] = {k: np.stack([h[k] for h in head]) for k in head[0]}
+        frames.views, frames.end_views = views or None, None
+        frames.camera_poses = {name: np.stack(p) for name, p in poses.items()} or None
+        self._pose_scene(frames, n - 1)
 
     def _pose_scene(self, frames: Frames, t: int) -> None:
         """Put the arm and the objects where frame ``t`` recorded them."""
