@@ -31,14 +31,42 @@ def encode_jpeg(images: np.ndarray, quality: int = JPEG_QUALITY) -> list[bytes]:
     return out
 
 
+def encode_png16(depth_mm: np.ndarray) -> list[bytes]:
+    """(T, H, W) uint16 depth maps as 16-bit PNG bytes (lossless; Rerun decodes them as depth images)."""
+    from PIL import Image
+
+    out = []
+    for d in depth_mm:
+        buf = io.BytesIO()
+        Image.fromarray(np.ascontiguousarray(d, dtype=np.uint16)).save(buf, format="PNG")
+        out.append(buf.getvalue())
+    return out
+
+
 class JpegFrames:
-    """The head-camera frames as JPEG bytes: a picklable step for the worker-side preparers."""
+    """Every camera's frames as the recording logs them: colour as JPEG, depth as 16-bit PNG, masks as they
+    are; a picklable step for the worker-side preparers. Returns {camera: {kind: frames}}."""
 
     def __init__(self, quality: int = JPEG_QUALITY):
         self.quality = quality
 
-    def __call__(self, frames: Any) -> list[bytes]:
-        return encode_jpeg(frames.images, self.quality)
+    def __call__(self, frames: Any) -> dict[str, dict[str, Any]]:
+        out: dict[str, dict[str, Any]] = {"head": {"rgb": encode_jpeg(frames.images, self.quality)}}
+        for camera, kinds in (getattr(frames, "views", None) or {}).items():
+            mine = out.setdefault(camera, {})
+            for kind, images in kinds.items():
+                if kind == "rgb":
+                    mine[kind] = encode_jpeg(images, self.quality)
+                elif kind == "depth":
+                    mine[kind] = encode_png16(images)
+                else:
+                    mine[kind] = np.asarray(images, dtype=np.uint8)
+        return out
+
+
+def view_entity(camera: str, kind: str = "rgb") -> str:
+    """Where a camera's images of one kind are logged (outside the camera's pinhole: see ``HEAD_IMAGE``)."""
+    return f"{camera}_camera/" + {"rgb": "image", "depth": "depth", "segmentation": "segmentation"}[kind]
 
 
 @dataclass
@@ -52,6 +80,8 @@ class EpisodeData:
     contacts: np.ndarray  # (T, n_objects)
     fps: float
     images: np.ndarray | list[bytes] | None = None  # (T, H, W, 3) uint8, or JPEG bytes per frame
+    # the other cameras' and kinds' frames (`JpegFrames`'s layout, or raw arrays): {camera: {kind: frames}}
+    views: dict[str, dict[str, Any]] | None = None
     start_index: int = 0  # dataset-wide index of frame 0
     timestamps: np.ndarray | None = None  # (T,) seconds; frame_index / fps when None
     attempt: int | None = None
@@ -74,6 +104,7 @@ class _Prepared:
     contacts: np.ndarray  # (T, n)
     state: np.ndarray
     jpegs: list[bytes] | None
+    views: dict[str, dict[str, Any]]  # camera -> kind -> JPEG / PNG bytes per frame, or (T, H, W) uint8 ids
     targets: np.ndarray  # (k, 3)
     events: tuple[np.ndarray, np.ndarray]  # contact positions (m, 3), object index (m,)
 
@@ -121,6 +152,17 @@ class EpisodeColumns:
         jpegs = None
         if ep.images is not None and len(ep.images):
             jpegs = ep.images if isinstance(ep.images, list) else encode_jpeg(np.asarray(ep.images))
+        views: dict[str, dict[str, Any]] = {}
+        for camera, kinds in (ep.views or {}).items():
+            for kind, frames in kinds.items():
+                if kind == "rgb" and not isinstance(frames, list):
+                    frames = encode_jpeg(np.asarray(frames))
+                elif kind == "depth" and not isinstance(frames, list):
+                    frames = encode_png16(np.asarray(frames))
+                if camera == "head" and kind == "rgb":
+                    jpegs = frames
+                else:
+                    views.setdefault(camera, {})[kind] = frames
         t_idx, o_idx = np.nonzero(contacts > 0)
         self._eps.append(
             _Prepared(
@@ -133,6 +175,7 @@ class EpisodeColumns:
                 contacts=contacts,
                 state=np.asarray(ep.state, dtype=np.float64),
                 jpegs=jpegs,
+                views=views,
                 targets=np.zeros((0, 3)) if ep.ee_targets is None else np.asarray(ep.ee_targets, float).reshape(-1, 3),
                 events=(ee[t_idx], o_idx),
             )
@@ -193,6 +236,7 @@ class EpisodeColumns:
                 indexes=img_idx,
                 columns=rr.EncodedImage.columns(blob=blobs, media_type=["image/jpeg"] * len(blobs)),
             )
+        _send_views(rec, eps, names)
         n_obj, dof = len(scene.object_names), len(scene.joint_names)
         rec.send_columns(
             "contacts",
@@ -237,6 +281,29 @@ class EpisodeColumns:
                 labels=[scene.object_names[o] for o in objs],
             ).partition([len(e.events[1]) for e in eps]),
         )
+
+
+def _send_views(rec: rr.RecordingStream, eps: list[_Prepared], names: list[str]) -> None:
+    """The other cameras' images and the head camera's depth and masks, one column per camera and kind."""
+    import rerun as rr
+
+    cat = np.concatenate
+    pairs = dict.fromkeys((c, k) for e in eps for c, kinds in e.views.items() for k in kinds)
+    for camera, kind in pairs:
+        having = [e for e in eps if kind in e.views.get(camera, {})]
+        idx = [_time_column(k, cat([e.times[k] for e in having])) for k in names]
+        frames = [f for e in having for f in e.views[camera][kind]]
+        if kind == "rgb":
+            cols = rr.EncodedImage.columns(blob=frames, media_type=["image/jpeg"] * len(frames))
+        elif kind == "depth":
+            cols = rr.EncodedDepthImage.columns(
+                blob=frames, media_type=["image/png"] * len(frames), meter=[1000.0] * len(frames)
+            )
+        else:
+            h, w = frames[0].shape
+            fmt = rr.components.ImageFormat(width=w, height=h, channel_datatype="U8")
+            cols = rr.SegmentationImage.columns(buffer=[f.tobytes() for f in frames], format=[fmt] * len(frames))
+        rec.send_columns(view_entity(camera, kind), indexes=idx, columns=cols)
 
 
 def _time_column(name: str, values: np.ndarray) -> rr.TimeColumn:

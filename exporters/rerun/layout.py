@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from .scene import HEAD_IMAGE
 
@@ -23,9 +23,29 @@ def new_recording(recording_id: str) -> rr.RecordingStream:
     return rec
 
 
-def blueprint(timeline: str = "index") -> rrb.Blueprint:
-    """3D scene, head camera and the overview of final positions, with plots that have data on ``timeline``:
-    one episode (``frame_index``) gets its contacts and joint state, many also the per-attempt plots."""
+def camera_views(cameras: list[dict[str, Any]] | None) -> rrb.Container | rrb.SpaceView:
+    """One 2D view per camera and kind recorded (the head camera's colour alone for runs without the setting):
+    colour, depth (Rerun's depth colour map) and instance masks (named by the annotation context)."""
+    import rerun.blueprint as rrb
+
+    from .columns import view_entity
+
+    views = []
+    for cam in cameras or [{"name": "head"}]:
+        kinds = ["rgb"] + [k for k in ("depth", "segmentation") if cam.get(k)]
+        for kind in kinds:
+            label = {"rgb": "camera", "depth": "depth", "segmentation": "masks"}[kind]
+            entity = HEAD_IMAGE if (cam["name"], kind) == ("head", "rgb") else view_entity(cam["name"], kind)
+            views.append(
+                rrb.Spatial2DView(origin=entity.rsplit("/", 1)[0], contents=[entity], name=f"{cam['name']} {label}")
+            )
+    return views[0] if len(views) == 1 else rrb.Grid(*views, grid_columns=min(3, len(views)))
+
+
+def blueprint(timeline: str = "index", cameras: list[dict[str, Any]] | None = None) -> rrb.Blueprint:
+    """3D scene, the cameras' images and the overview of final positions, with plots that have data on
+    ``timeline``: one episode (``frame_index``) gets its contacts and joint state, many also the per-attempt
+    plots. ``cameras``: the run's (``world.cameras`` in run.json)."""
     import rerun.blueprint as rrb
 
     so_far = [
@@ -60,7 +80,7 @@ def blueprint(timeline: str = "index") -> rrb.Blueprint:
                 ),
             ),
             rrb.Vertical(
-                rrb.Spatial2DView(origin=HEAD_IMAGE.rsplit("/", 1)[0], name="Head camera"),
+                camera_views(cameras),
                 rrb.Spatial3DView(
                     origin="overview",
                     name="Final tool and object positions, from above",

@@ -143,8 +143,41 @@ def _shape_archetype(
     )
 
 
-def log_scene(rec: rr.RecordingStream, scene: Scene, image_size: tuple[int, int] | None = None) -> None:
-    """Static parts: world axes, table, robot link shapes, object shapes, head camera, overview background."""
+def log_cameras(rec: rr.RecordingStream, scene: Scene, cameras: list[dict[str, Any]], size: tuple[int, int]) -> None:
+    """The frustums of the fixed cameras other than the head, and the names and colours of the instance ids
+    the masks hold (one annotation context for every mask)."""
+    import rerun as rr
+
+    from babblegen.world.cameras import look_at_cam2world
+
+    for cam in cameras:
+        if cam.get("mount") != "fixed":
+            continue
+        h, w = cam.get("height") or size[0], cam.get("width") or size[1]
+        pose = look_at_cam2world(cam["eye"], cam["target"])
+        path = f"world/{cam['name']}_camera"
+        rec.log(path, rr.Transform3D(translation=pose[:3, 3], mat3x3=pose[:3, :3]), static=True)
+        pinhole = rr.Pinhole(fov_y=float(cam["fov"]), aspect_ratio=w / h, width=w, height=h, image_plane_distance=0.25)
+        rec.log(path, pinhole, static=True)
+    if any(cam.get("segmentation") for cam in cameras):
+        from babblegen.world.cameras import instance_names
+
+        colors = {"background": (0, 0, 0, 255), "table": TABLE_COLOR, "floor": (200, 200, 195, 255)}
+        colors.update(robot=ROBOT_COLOR, **scene.colors)
+        labels = [
+            rr.AnnotationInfo(id=i, label=name, color=colors.get(name, OBSTACLE_COLOR))
+            for i, name in enumerate(instance_names(scene.object_names, [b["name"] for b in scene.obstacles]))
+        ]
+        rec.log("/", rr.AnnotationContext(labels), static=True)
+
+
+def log_scene(
+    rec: rr.RecordingStream,
+    scene: Scene,
+    image_size: tuple[int, int] | None = None,
+    cameras: list[dict[str, Any]] | None = None,
+) -> None:
+    """Static parts: world axes, table, robot link shapes, object shapes, cameras, overview background."""
     import rerun as rr
 
     rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
@@ -189,6 +222,8 @@ def log_scene(rec: rr.RecordingStream, scene: Scene, image_size: tuple[int, int]
             rr.Pinhole(fov_y=float(cam["fov"]), aspect_ratio=w / h, width=w, height=h, image_plane_distance=0.25),
             static=True,
         )
+    if cameras and image_size is not None:
+        log_cameras(rec, scene, cameras, image_size)
     log_overview_background(rec, scene)
     object_lines = rr.SeriesLines(colors=[scene.colors[n] for n in scene.object_names], names=scene.object_names)
     rec.log("contacts", object_lines, static=True)

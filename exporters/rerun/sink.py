@@ -25,7 +25,7 @@ if TYPE_CHECKING:
 RERUN_DIR = "rerun"
 INDEX = "index.json"
 SEGMENT = "segment-{:05d}.rrd"
-FLUSH_TIMEOUT_S = 120.0  # a segment's flush takes well under a second; only a stuck writer takes this long
+FLUSH_TIMEOUT_S = 30.0  # a segment's flush takes well under a second; only a stuck writer (a full disk) takes this long
 
 
 def _guarded(method: Callable) -> Callable:
@@ -79,6 +79,7 @@ class RerunSink(Sink):
         self._in_progress = False
         self._fps = 10.0
         self._image_size: tuple[int, int] | None = None
+        self._cameras: list[dict[str, Any]] = []  # the run's cameras (run.json), for their frustums
         if state is not None:
             self.rollback(state["episodes"], state.get("attempts"))
 
@@ -98,13 +99,19 @@ class RerunSink(Sink):
         self._in_progress = True
         frames = getattr(rollout, "frames", None)
         if frames is not None and row.get("episode_index") is not None:
+            prepared = getattr(rollout, "prepared", {}).get(self.name)  # frames encoded by a worker
+            if isinstance(prepared, dict):
+                images, views = None, prepared
+            else:  # JPEGs of the head camera alone (or nothing prepared)
+                images, views = (prepared if prepared is not None else frames.images), frames.views
             ep = EpisodeData(
                 episode_index=int(row["episode_index"]),
                 state=frames.state,
                 ee_pos=frames.ee_pos,
                 object_poses=frames.object_poses,
                 contacts=frames.contacts,
-                images=getattr(rollout, "prepared", {}).get(self.name, frames.images),  # JPEGs from a worker
+                images=images,
+                views=views,
                 fps=self._fps,
                 start_index=self.columns.tally.frames,
                 attempt=int(row["attempt"]),
@@ -158,8 +165,11 @@ class RerunSink(Sink):
             stacklevel=3,
         )
         if self._rec is not None:
-            with contextlib.suppress(Exception):  # already reporting an error
-                self._rec.disconnect()
+            if _writer_stuck(error):
+                _ABANDONED.append(self._rec)
+            else:
+                with contextlib.suppress(Exception):  # already reporting an error
+                    self._rec.disconnect()
             self._rec = None
 
     def _load_index(self) -> dict[str, Any]:
@@ -185,6 +195,7 @@ class RerunSink(Sink):
             self._fps = float(world.get("fps", self._fps))
             if "camera_height" in world:
                 self._image_size = (int(world["camera_height"]), int(world["camera_width"]))
+            self._cameras = list(world.get("cameras") or [])
             self.columns = AttemptColumns(self.scene, self._tally)
             self.episodes = EpisodeColumns(self.scene)
         index = self._load_index()
@@ -193,20 +204,27 @@ class RerunSink(Sink):
         numbers += [int(Path(s["file"]).stem.split("-")[1]) for s in index["segments"]]
         self._segment = self.dir / SEGMENT.format(max(numbers, default=-1) + 1)
         rec = new_recording(index["recording_id"])
-        rec.save(self._segment, default_blueprint=blueprint())
+        rec.save(self._segment, default_blueprint=blueprint(cameras=self._cameras))
         self._rec = rec
-        log_scene(rec, self.scene, self._image_size)
+        log_scene(rec, self.scene, self._image_size, self._cameras)
 
     def _close_segment(self) -> None:
         if self._rec is None:
             return
         rec, self._rec = self._rec, None
-        self.episodes.send(rec)
-        self.columns.send(rec)
-        # bounded: on a full disk the SDK's file writer can stop without the flush ever returning (seen with
-        # rerun-sdk 0.41); a timeout raises, and the sink is disabled like for any other error
-        rec.flush(timeout_sec=FLUSH_TIMEOUT_S)
-        rec.disconnect()
+        try:
+            self.episodes.send(rec)
+            self.columns.send(rec)
+            # bounded: on a full disk the SDK's file writer can stop without the flush ever returning (seen with
+            # rerun-sdk 0.41); a timeout raises, and the sink is disabled like for any other error
+            rec.flush(timeout_sec=FLUSH_TIMEOUT_S)
+            rec.disconnect()
+        except Exception as e:
+            if _writer_stuck(e):
+                _ABANDONED.append(rec)
+            else:
+                self._rec = rec  # `_disable` closes it
+            raise
         tally = self.columns.tally
         self._load_index()["segments"].append(
             {
@@ -218,6 +236,23 @@ class RerunSink(Sink):
         )
         self._write_index()
         self._in_progress = False
+
+
+# Recording streams whose file writer failed (a full disk): dropping one makes the SDK wait for that writer,
+# forever (rerun-sdk 0.41: `RecordingStream.__del__` hung the run), so they are kept until the process exits.
+_ABANDONED: list[Any] = []
+
+
+def _writer_stuck(error: BaseException) -> bool:
+    """Whether ``error`` says the recording's file writer is gone or stuck (a full disk, a flush that timed out)."""
+    text = str(error)
+    return (
+        isinstance(error, OSError)
+        or "No space left" in text
+        or "File-writer" in text
+        or "timeout" in text.lower()
+        or "timed out" in text.lower()
+    )
 
 
 def recording_files(root: str | Path) -> list[Path]:

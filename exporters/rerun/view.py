@@ -33,19 +33,47 @@ def _column(table: pa.Table, name: str) -> np.ndarray:
     return arr.to_numpy(zero_copy_only=False)
 
 
-def _decode_head(ds, episode: int, timestamps: np.ndarray) -> np.ndarray | None:
-    """An episode's head-camera frames as (T, H, W, 3) uint8, or None when they cannot be decoded."""
+def _decode_video(ds, episode: int, key: str, timestamps: np.ndarray) -> np.ndarray:
+    """An episode's frames of one video feature: (T, H, W, 3) uint8 colour, or (T, H, W) uint16 millimetres for
+    a depth map."""
+    from lerobot.datasets.depth_utils import dequantize_depth
     from lerobot.datasets.video_utils import decode_video_frames
 
-    from ..lerobot import HEAD
-
-    if HEAD not in ds.meta.video_keys:
-        return None
     ep = ds.meta.episodes[episode]
-    path = Path(ds.root) / ds.meta.get_video_file_path(episode, HEAD)
-    ts = (np.asarray(timestamps, dtype=np.float64) + float(ep[f"videos/{HEAD}/from_timestamp"])).tolist()
-    frames = decode_video_frames(path, ts, ds.tolerance_s, return_uint8=True)
-    return np.asarray(frames).transpose(0, 2, 3, 1)
+    path = Path(ds.root) / ds.meta.get_video_file_path(episode, key)
+    ts = (np.asarray(timestamps, dtype=np.float64) + float(ep[f"videos/{key}/from_timestamp"])).tolist()
+    info = ds.meta.features[key].get("info") or {}
+    if not info.get("is_depth_map"):
+        return np.asarray(decode_video_frames(path, ts, ds.tolerance_s, return_uint8=True)).transpose(0, 2, 3, 1)
+    codes = decode_video_frames(path, ts, ds.tolerance_s, is_depth=True, backend="pyav")
+    mm = dequantize_depth(
+        codes,
+        depth_min=info["video.depth_min"],
+        depth_max=info["video.depth_max"],
+        shift=info.get("video.shift", 3.5),
+        use_log=info.get("video.use_log", False),
+        output_unit="mm",
+        output_tensor=False,
+    )
+    return np.asarray(mm).reshape(len(ts), *ds.meta.features[key]["shape"][:2]).astype(np.uint16)
+
+
+def _episode_images(ds, table, episode: int, rows: slice, timestamps: np.ndarray) -> dict[str, dict[str, Any]]:
+    """Every camera's images of an episode read back from the dataset: {camera: {kind: frames}}."""
+    import io
+
+    from PIL import Image
+
+    from ..lerobot_encoding import image_sources
+
+    out: dict[str, dict[str, Any]] = {}
+    for key, (camera, kind) in image_sources(ds.meta.features).items():
+        if ds.meta.features[key]["dtype"] == "video":
+            out.setdefault(camera, {})[kind] = _decode_video(ds, episode, key, timestamps)
+        else:  # masks, stored as PNG in the table
+            cells = table.column(key).combine_chunks().field("bytes").to_pylist()[rows]
+            out.setdefault(camera, {})[kind] = np.stack([np.asarray(Image.open(io.BytesIO(c))) for c in cells])
+    return out
 
 
 def view_dataset(
@@ -70,7 +98,8 @@ def view_dataset(
         raise ValueError(f"episode {bad[0]} is not in {root} (it has episodes 0 to {total - 1})")
 
     rec = new_recording(f"view-{uuid.uuid4()}")
-    bp = blueprint("frame_index" if len(episodes) == 1 else "index")
+    cameras = (info.get("config", {}).get("world", {}) or {}).get("cameras")
+    bp = blueprint("frame_index" if len(episodes) == 1 else "index", cameras)
     if save is not None:
         save = Path(save)
         save.parent.mkdir(parents=True, exist_ok=True)
@@ -86,7 +115,7 @@ def view_dataset(
     head = ds.meta.features.get(HEAD)
     if head is not None:
         image_size = (int(head["shape"][0]), int(head["shape"][1]))
-    log_scene(rec, scene, image_size)
+    log_scene(rec, scene, image_size, cameras)
     columns = AttemptColumns(scene, static_overview=True)
     for row in rows:
         columns.add(row)
@@ -112,13 +141,13 @@ def view_dataset(
         meta = ds.meta.episodes[e]
         a, b = int(meta["dataset_from_index"]), int(meta["dataset_to_index"])
         row = by_episode.get(e, {})
-        images = None
+        views = None
         if not decode_failed:
             try:
-                images = _decode_head(ds, e, data["timestamp"][a:b])
+                views = _episode_images(ds, table, e, slice(a, b), data["timestamp"][a:b])
             except Exception as err:  # noqa: BLE001  (the rest of the episode is still worth showing)
                 decode_failed = True
-                echo(f"babblegen: warning: cannot decode the head-camera video ({err}); logging without images")
+                echo(f"babblegen: warning: cannot decode the camera videos ({err}); logging without images")
         targets = row.get("ee_targets")
         batch.add(
             EpisodeData(
@@ -128,7 +157,7 @@ def view_dataset(
                 object_poses=data["observation.environment_state"][a:b].reshape(b - a, n_obj, 7),
                 contacts=data["observation.contacts"][a:b],
                 fps=float(ds.fps),
-                images=images,
+                views=views,
                 start_index=int(data["index"][a]),
                 timestamps=data["timestamp"][a:b],
                 attempt=row.get("attempt"),
