@@ -35,10 +35,12 @@ import numpy as np
 from babblegen.parallel.scheduler import PoolEvaluator
 
 
-def record(n: int, seed: int, width: int) -> list:
-    """``n`` real rollouts of random one-waypoint genomes, in order (infeasible ones included), each made as a
-    worker process makes it: the movement with its first and last frames (``total``), then the other frames
-    rendered and the episode prepared (``prepare``)."""
+def record(n: int, seed: int, config: dict, replay: list[dict] | None = None) -> list:
+    """``n`` real rollouts of random one-waypoint genomes, in order (infeasible ones included), or with
+    ``replay`` (a run's sidecar rows) its executed genomes at ``n`` evenly spaced attempts, so that the episodes
+    written are as long as that run's at that point; each made as a worker process makes it: the movement with
+    its first and last frames (``total``), then the other frames rendered and the episode prepared
+    (``prepare``)."""
     from babblegen.descriptors import make_descriptor
     from babblegen.evaluation import Preparers, arm_info, render_and_prepare_stepwise, seeded_rollout, warm_up
     from babblegen.exporters.lerobot_encoding import EpisodeEncoder, features, with_default_features
@@ -48,8 +50,10 @@ def record(n: int, seed: int, width: int) -> list:
     from babblegen.world.settings import WorldSettings
     from babblegen.world.world import World
 
-    task, settings = get_task(DEFAULT_TASK), WorldSettings(camera_width=width, camera_height=width)
-    feats = with_default_features(features(arm_info(task)["joints"], task.object_names, width, width))
+    task, settings = get_task(config.get("task", DEFAULT_TASK)), WorldSettings(**config["world"])
+    shape = (settings.camera_height, settings.camera_width)
+    feats = features(arm_info(task)["joints"], task.object_names, *shape, settings.cameras, task, settings)
+    feats = with_default_features(feats)  # the run's schema, as `Run._features` makes it
     prepare = Preparers({"lerobot": EpisodeEncoder(settings.fps, feats), "rerun": JpegFrames()})
     describe = make_descriptor("phash16")
     world = World(task, settings, seed)
@@ -65,7 +69,14 @@ def record(n: int, seed: int, width: int) -> list:
     # the first movements warm the simulator and renderer up (one took 11 s): not representative, not kept
     for warm in ([[0.5, 0.3, 0.5]], [[0.4, 0.2, 0.3]]):
         made(10**6, Command("ee_waypoints", np.array(warm)))
-    rollouts = [made(i, Command("ee_waypoints", rng.random((1, 3)))) for i in range(n)]
+    if replay is None:
+        rollouts = [made(i, Command("ee_waypoints", rng.random((1, 3)))) for i in range(n)]
+    else:
+        executed = [r for r in replay if r["feasible"]]
+        picked = [executed[int(i)] for i in np.linspace(0, len(executed) - 1, n).round()]
+        rollouts = [made(r["attempt"], Command(r["kind"], np.asarray(r["genome"]))) for r in picked]
+        for r, row in zip(rollouts, picked, strict=True):
+            r.timings["replayed_attempt"] = row["attempt"]
     world.close()
     return rollouts
 
@@ -91,6 +102,8 @@ class ReplayPool(PoolEvaluator):
         self.feasible = [i for i, r in enumerate(rollouts) if r.feasible]
         self.infeasible = [i for i, r in enumerate(rollouts) if not r.feasible] or [0]
         self.times = [(r.timings.get("total", 0.0), r.timings.get("prepare", 0.0)) for r in rollouts]
+        replayed = [r.timings.get("replayed_attempt") for r in rollouts]
+        self.at_attempt = None if None in replayed else np.asarray(replayed)  # recorded from the replayed run
         self._running: dict[int, tuple] = {}  # slot -> (done at, pickled rollout, command, attempt, prepare s, code)
         self._queue: deque[list] = deque()  # preparations waiting: [attempt, seconds left]
         self._preparing: dict[int, list] = {}  # slot -> the preparation it works on
@@ -104,15 +117,20 @@ class ReplayPool(PoolEvaluator):
         if self.replay is None or attempt >= len(self.replay):
             k = attempt % len(self.recorded)
             return self.recorded[k], *self.times[k], None
-        row = self.replay[attempt]
-        pool = self.feasible if row["feasible"] else self.infeasible
-        code = None
-        if row["feasible"]:
-            from babblegen.descriptors import from_hex
+        row, t = self.replay[attempt], self.replay[attempt]["timings"]
+        seconds = (t.get("total", 0.0), t.get("prepare", 0.0))
+        if not row["feasible"]:  # as the run found it: not executed, for this reason
+            from babblegen.world.rollout import Command, Rollout
 
-            code = from_hex(row["descriptor"], 4)
-        t = row["timings"]
-        return self.recorded[pool[attempt % len(pool)]], t.get("total", 0.0), t.get("prepare", 0.0), code
+            infeasible = Rollout(Command(row["kind"], np.asarray(row["genome"])), False, row["reason"])
+            return pickle.dumps(infeasible, pickle.HIGHEST_PROTOCOL), *seconds, None
+        if self.at_attempt is not None:  # the recorded episode nearest this attempt in the run
+            k = int(np.argmin(np.abs(self.at_attempt - attempt)))
+        else:
+            k = self.feasible[attempt % len(self.feasible)]
+        from babblegen.descriptors import from_hex
+
+        return self.recorded[k], *seconds, from_hex(row["descriptor"], -(-len(row["descriptor"]) * 4 // 64))
 
     def _advance(self) -> None:
         """Let the workers with no movement work off preparations up to now."""
@@ -291,6 +309,21 @@ def plot(results: list[dict], label: str, width: int, path: Path) -> None:
     fig.savefig(path, dpi=120)
 
 
+def recorded_cameras(root: Path, configured: list[dict]) -> list[dict]:
+    """The cameras and kinds a dataset holds (its features), of those its configuration names."""
+    from babblegen.exporters.lerobot_encoding import image_sources
+
+    held = json.loads((root / "meta" / "info.json").read_text())["features"]
+    kinds: dict[str, set[str]] = {}
+    for camera, kind in image_sources(held).values():
+        kinds.setdefault(camera, set()).add(kind)
+    return [
+        {**cam, "depth": "depth" in kinds[cam["name"]], "segmentation": "segmentation" in kinds[cam["name"]]}
+        for cam in map(dict, configured)
+        if cam["name"] in kinds
+    ]
+
+
 def _option(item: str) -> tuple[str, object]:
     key, _, value = item.partition("=")
     return key, json.loads(value) if value[:1].isdigit() or value in ("true", "false") else value
@@ -313,14 +346,15 @@ def main() -> None:
     p.add_argument("--json", action="store_true", help="one JSON object per worker count on stdout, nothing else")
     p.add_argument("--plot", type=Path, default=None, help="save the curve here (PNG)")
     args = p.parse_args()
-    from babblegen.config import RunConfig
+    from babblegen.config import RunConfig, resumed_config
     from babblegen.exporters.sidecar import read_attempts, read_run_info
 
     say = (lambda *a, **k: None) if args.json else print
     replay = None
     if args.replay is not None:
         replay = read_attempts(args.replay)
-        config = read_run_info(args.replay)["config"]
+        config = resumed_config(read_run_info(args.replay)["config"]).to_dict()  # in this version's terms
+        config["world"]["cameras"] = recorded_cameras(args.replay, config["world"]["cameras"])
         attempts = args.attempts or len(replay)
         config["world"]["camera_width"] = config["world"]["camera_height"] = width = config["world"]["camera_width"]
         seconds = [worker_seconds_of_row(r) for r in replay[:attempts]]
@@ -335,7 +369,7 @@ def main() -> None:
     if args.recorded is not None and args.recorded.exists():
         rollouts = pickle.loads(args.recorded.read_bytes())
     else:
-        rollouts = record(args.record, 0, width)
+        rollouts = record(args.record, 0, config, replay)
         if args.recorded is not None:
             args.recorded.write_bytes(pickle.dumps(rollouts, pickle.HIGHEST_PROTOCOL))
     if replay is None:

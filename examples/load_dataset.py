@@ -5,7 +5,8 @@
 Prints the features (with the joint and object names stored in the dataset's metadata), the shapes of one
 batch of frames, what one episode holds, and that episode's row of the sidecar table (novelty, contacts,
 displacements). Saves the episode's before (first frame) and after (last frame) head-camera images side by
-side. Without --episode it picks the first episode in which the arm touched an object.
+side, and, for a dataset with more views, every camera's colour, depth and instance masks before and after
+(OUT_views.png). Without --episode it picks the first episode in which the arm touched an object.
 """
 
 from __future__ import annotations
@@ -116,6 +117,41 @@ def main() -> None:
     args.out.parent.mkdir(parents=True, exist_ok=True)
     side_by_side(to_uint8(first[HEAD]), to_uint8(last[HEAD]), scale=args.scale).save(args.out)
     print(f"before | after images of episode {episode} -> {args.out}")
+    if len(ds.meta.camera_keys) > 1:
+        in_metres = LeRobotDataset(ds.repo_id, root=args.root, depth_output_unit="m")
+        out = args.out.with_name(args.out.stem + "_views.png")
+        colors = [o["color"] for o in json.loads((args.root / "babblegen" / "run.json").read_text())["task"]["objects"]]
+        views_grid(ds, in_metres, [start, stop - 1], ds.meta.camera_keys, colors, args.scale).save(out)
+        print(f"every camera's colour, depth and masks, before (top) and after (bottom) -> {out}")
+
+
+def views_grid(ds, in_metres, frames: list[int], keys: list[str], colors: list, scale: int) -> Image.Image:
+    """One row per frame: each camera's colour image, its depth map (metres, nearer darker, clipped to 0.2 to
+    3 m) and its instance masks (ids 0 to 3: background, table, floor, robot; then each object in its colour),
+    side by side."""
+    palette = np.zeros((256, 3), np.uint8)
+    palette[:4] = [[0, 0, 0], [140, 102, 71], [200, 200, 195], [90, 90, 90]]
+    palette[4 : 4 + len(colors)] = (np.asarray(colors)[:, :3] * 255).round()
+    rows = []
+    for index in frames:
+        item, metric = ds[index], in_metres[index]
+        tiles = []
+        for key in keys:
+            value = item[key]
+            if key.endswith("_depth"):
+                depth = metric[key][0].numpy()
+                gray = (np.clip((depth - 0.2) / 2.8, 0, 1) * 255).astype(np.uint8)
+                tiles.append(np.repeat(gray[..., None], 3, axis=2))
+            elif key.endswith("_segmentation"):
+                tiles.append(palette[(value[0].numpy() * 255).round().astype(np.uint8)])
+            else:
+                tiles.append(to_uint8(value))
+        height = max(t.shape[0] for t in tiles)
+        row = [np.pad(t, ((0, height - t.shape[0]), (0, 4), (0, 0)), constant_values=255) for t in tiles]
+        rows.append(np.concatenate(row, axis=1))
+    canvas = np.concatenate([np.pad(r, ((0, 4), (0, 0), (0, 0)), constant_values=255) for r in rows], axis=0)
+    img = Image.fromarray(canvas)
+    return img.resize((img.width * scale, img.height * scale), Image.NEAREST) if scale > 1 else img
 
 
 if __name__ == "__main__":

@@ -5,7 +5,8 @@ data from NovEB train a better model than the same number of random-babbling epi
     python examples/train_world_model.py --noveb DIR_A --random DIR_B [--epochs 300] [--seed 0] [--repeats 3]
 
 Per episode, the input is the `action` column (commanded joint positions) resampled to --steps time steps
-(optionally with the tool path `observation.ee_pos`); the targets come from `observation.environment_state`:
+(optionally with the tool path `observation.ee_pos`, and with --before the head camera's masks or depth map of
+the first frame, 16 x 16); the targets come from `observation.environment_state`:
 last frame minus first frame, (dx, dy) per object, and "moved" = displaced more than --moved-threshold metres.
 
 Each repeat holds out about the same number of episodes from both datasets as one common test set, trains one
@@ -38,7 +39,7 @@ class Episodes:
     """One dataset as fixed-size arrays, one row per episode."""
 
     source: str
-    x: np.ndarray  # (E, steps, channels) commanded joints (and tool path), resampled in time
+    x: np.ndarray  # (E, steps * channels [+ pixels]) commanded joints (and tool path) resampled in time, flattened
     disp: np.ndarray  # (E, n_objects, 2) final minus first object position, metres
     moved: np.ndarray  # (E, n_objects) bool
     object_names: list[str]
@@ -52,8 +53,12 @@ def resample(seq: np.ndarray, steps: int) -> np.ndarray:
     return np.stack([np.interp(t_new, t_old, seq[:, c]) for c in range(seq.shape[1])], axis=1)
 
 
-def load_episodes(root: Path, source: str, steps: int, with_ee: bool, threshold: float) -> Episodes:
-    """Read a dataset's per-frame columns (no video decoding) and turn each episode into one example."""
+def load_episodes(
+    root: Path, source: str, steps: int, with_ee: bool, threshold: float, before: str | None = None
+) -> Episodes:
+    """Read a dataset's per-frame columns and turn each episode into one example; with ``before``
+    ("masks" or "depth"), the head camera's instance masks or depth map of the episode's first frame, averaged
+    down to 16 x 16, join the input."""
     repo_id = json.loads((root / "babblegen" / "run.json").read_text())["repo_id"]
     ds = LeRobotDataset(repo_id, root=root)
     objects = list(ds.meta.features["observation.contacts"]["names"])
@@ -64,9 +69,16 @@ def load_episodes(root: Path, source: str, steps: int, with_ee: bool, threshold:
     env = np.asarray(table["observation.environment_state"], dtype=np.float64).reshape(len(episode), -1, 7)
     inputs = np.concatenate([action, np.asarray(table["observation.ee_pos"])], axis=1) if with_ee else action
     xs, disps = [], []
+    view = {"masks": "observation.images.head_segmentation", "depth": "observation.images.head_depth"}.get(before)
+    if view is not None and view not in ds.meta.features:
+        raise SystemExit(f"{root} has no {view} (recorded with --no-{'segmentation' if before == 'masks' else before})")
     for e in np.unique(episode):
         rows = np.flatnonzero(episode == e)  # frames in order within an episode
-        xs.append(resample(inputs[rows], steps))
+        x = resample(inputs[rows], steps).ravel()
+        if view is not None:
+            image = ds[int(rows[0])][view][0][None, None].float()  # (1, 1, H, W): ids / 255, or millimetres
+            x = np.concatenate([x, torch.nn.functional.adaptive_avg_pool2d(image, 16).numpy().ravel()])
+        xs.append(x)
         disps.append(env[rows[-1], :, :2] - env[rows[0], :, :2])
     if not xs:
         raise SystemExit(f"{root} holds no episodes")
@@ -185,13 +197,19 @@ def main() -> None:
     parser.add_argument("--ee", action="store_true", help="also feed the tool path observation.ee_pos")
     parser.add_argument("--hidden", type=int, default=128)
     parser.add_argument("--moved-threshold", type=float, default=0.01, help="metres: an object 'moves'")
+    parser.add_argument(
+        "--before",
+        choices=("masks", "depth"),
+        default=None,
+        help="also feed the head camera's masks or depth map of each episode's first frame (16 x 16)",
+    )
     args = parser.parse_args()
 
     datasets.disable_progress_bars()
     torch.set_num_threads(1)
     torch.use_deterministic_algorithms(True)
     data = {
-        name: load_episodes(root, name, args.steps, args.ee, args.moved_threshold)
+        name: load_episodes(root, name, args.steps, args.ee, args.moved_threshold, args.before)
         for name, root in (("noveb", args.noveb), ("random", args.random))
     }
     if data["noveb"].object_names != data["random"].object_names:
@@ -213,7 +231,7 @@ def main() -> None:
         )
     print(
         f"per repeat: test = {n_test} + {n_test} held-out episodes (NovEB + random), train = {n_train} episodes "
-        f"per model; input {args.steps} x {data['noveb'].x.shape[2]}, {args.epochs} epochs, {args.repeats} repeats"
+        f"per model; {data['noveb'].x.shape[1]} inputs, {args.epochs} epochs, {args.repeats} repeats"
     )
 
     labels = {"noveb": "trained on NovEB", "random": "trained on random", "both": "trained on both (half each)"}
