@@ -415,6 +415,7 @@ class Run:
                 c["contacts"] += int(rollout.touched.any())
             if bar is not None and self._bar_counts_attempts():
                 bar.update(1)
+                self._show_counts(bar)
 
     def _bar_counts_attempts(self) -> bool:
         """Whether ``max_attempts`` can end the run before its generations do (a generation attempts at most
@@ -444,6 +445,10 @@ class Run:
             return
         if not self._bar_counts_attempts():
             bar.update(1)
+            self._show_counts(bar)
+
+    def _show_counts(self, bar) -> None:
+        """The counters beside the bar, as of the attempt or generation it just counted."""
         c = self.counters
         bar.set_postfix(
             attempts=c["attempts"],
