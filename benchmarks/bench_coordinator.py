@@ -13,7 +13,7 @@ worker seconds per executed episode), the share of it the run keeps, how busy th
 time goes. W = 0 hands every attempt back at once: what the coordinator sustains alone. ``--json`` prints one
 JSON object per line; ``--plot`` saves the curve (episodes/s against workers).
 
-    python benchmarks/bench_coordinator.py --attempts 1200 --workers 0 1 8 32 --json
+    python benchmarks/bench_coordinator.py --workers 0 1 8 32 --json   # 4,000 attempts each: at 32 workers 1,200 last 7 s
     python benchmarks/bench_coordinator.py --workers 0 1 2 4 8 16 32 --plot docs/images/coordinator.png
     python benchmarks/bench_coordinator.py --set children=12 --set lag=0 --workers 0 8 32   # the paper's form
 """
@@ -240,9 +240,14 @@ def run(
     finally:
         assembly.build_evaluator = original
     rows = read_attempts(out)
-    first_gen_end = max(i for i, r in enumerate(rows) if r["generation"] == rows[0]["generation"])
-    later = rows[first_gen_end + 1 :]
-    seconds = later[-1]["timings"]["written_at"] - rows[first_gen_end]["timings"]["written_at"]
+    # the steady state: after the first commit point, when every attempt before it has been written (between
+    # commit points rows are written as their episodes are prepared, which idle workers may leave for later)
+    first_commit = rows[0]["generation"] + cfg.checkpoint_every - 1
+    if rows[-1]["generation"] <= first_commit:
+        first_commit = rows[0]["generation"]
+    start = max(i for i, r in enumerate(rows) if r["generation"] <= first_commit)
+    later = rows[start + 1 :]
+    seconds = later[-1]["timings"]["written_at"] - rows[start]["timings"]["written_at"]
     executed = sum(r["feasible"] for r in later)
     waited = sum(r["timings"]["wait_for_batch"] for r in later if r["attempt"] in _first_of_generation(later))
     return {
@@ -281,7 +286,7 @@ def plot(results: list[dict], label: str, width: int, path: Path) -> None:
 
     fig = Figure(figsize=(5.4, 3.4), layout="constrained")
     ax = fig.subplots()
-    fed = [r for r in results if r["workers"]]
+    fed = sorted((r for r in results if r["workers"]), key=lambda r: r["workers"])
     ax.plot([r["workers"] for r in fed], [r["episodes_per_s"] for r in fed], "o-", label=f"NovEB, {label}")
     ax.plot([r["workers"] for r in fed], [r["capacity_per_s"] for r in fed], "--", color="gray", label="capacity")
     for r in results:
@@ -331,7 +336,7 @@ def _option(item: str) -> tuple[str, object]:
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--attempts", type=int, default=None, help="attempts per worker count [1200; a replay: all]")
+    p.add_argument("--attempts", type=int, default=None, help="attempts per worker count [4000; a replay: all]")
     p.add_argument("--workers", type=int, nargs="+", default=[0, 1, 2, 4, 8, 16, 32])
     p.add_argument("--record", type=int, default=48, help="real rollouts recorded and replayed")
     p.add_argument("--width", type=int, default=128)
@@ -360,7 +365,7 @@ def main() -> None:
         seconds = [worker_seconds_of_row(r) for r in replay[:attempts]]
         executed = sum(r["feasible"] for r in replay[:attempts])
     else:
-        attempts, width = args.attempts or 1200, args.width
+        attempts, width = args.attempts or 4000, args.width
         config = RunConfig().to_dict()
         config["noveb"].update(dict(_option(item) for item in args.set))
         config["world"].update(camera_width=width, camera_height=width)
