@@ -40,10 +40,17 @@ def assert_same_dataset(a, b) -> None:
     # the same pixels, encoded the same way: worker processes render most frames after the movement
     videos_a, videos_b = video_digests(a), video_digests(b)
     assert videos_a == videos_b and len(videos_a) > 0
+    # the data tables too, byte for byte: they hold the instance masks (PNG)
+    tables_a, tables_b = digests(a, "data/**/*.parquet"), digests(b, "data/**/*.parquet")
+    assert tables_a == tables_b and len(tables_a) > 0
 
 
 def video_digests(root) -> dict[str, str]:
-    return {str(p.relative_to(root)): hashlib.sha256(p.read_bytes()).hexdigest() for p in root.glob("videos/**/*.mp4")}
+    return digests(root, "videos/**/*.mp4")
+
+
+def digests(root, pattern: str) -> dict[str, str]:
+    return {str(p.relative_to(root)): hashlib.sha256(p.read_bytes()).hexdigest() for p in root.glob(pattern)}
 
 
 @pytest.fixture(scope="module")
@@ -61,6 +68,22 @@ def test_two_workers_write_the_same_dataset_as_one(one_worker, tmp_path):
     # contact-rich: each worker's world saw a different contact history than the single world did
     touched = [any(r["touched"].values()) for r in read_attempts(out) if r["feasible"]]
     assert sum(touched) >= 5 and any(a and b for a, b in zip(touched, touched[1:], strict=False)), touched
+
+
+def test_a_second_camera_and_its_masks_are_the_same_with_two_workers_as_with_one(tmp_path):
+    """The head and front cameras' colour and masks: every frame between the first and last is rendered after
+    the movement, on whichever worker is free. (Depth and the wrist camera are not yet reproducible to the bit
+    across processes: README, "Views".)"""
+    views = ["--cameras", "head,front", "--no-depth", "--segmentation", "--max-attempts", "16"]
+    runs = {}
+    for workers in ("1", "2"):
+        runs[workers] = tmp_path / f"w{workers}"
+        assert main(["generate", "--out", str(runs[workers]), "--seed", "2", "--workers", workers, *ARGS, *views]) == 0
+    assert_same_dataset(runs["1"], runs["2"])
+    keys = {path.split("/")[1] for path in video_digests(runs["2"])}  # videos/<feature>/chunk-*/file-*.mp4
+    assert keys == {"observation.images.head", "observation.images.front"}
+    features = load_dataset(runs["2"], read_run_info(runs["2"])["repo_id"]).meta.features
+    assert {"observation.images.head_segmentation", "observation.images.front_segmentation"} <= set(features)
 
 
 def test_four_worker_processes_on_two_cores_write_the_same_dataset_as_one(one_worker, tmp_path):
