@@ -13,7 +13,7 @@ worker seconds per executed episode), the share of it the run keeps, how busy th
 time goes. W = 0 hands every attempt back at once: what the coordinator sustains alone. ``--json`` prints one
 JSON object per line; ``--plot`` saves the curve (episodes/s against workers).
 
-    python benchmarks/bench_coordinator.py --workers 0 1 8 32 --json   # 4,000 attempts each: at 32 workers 1,200 last 7 s
+    python benchmarks/bench_coordinator.py --workers 0 1 8 32 --json   # 4,000 attempts each (1,200: 7 s at 32)
     python benchmarks/bench_coordinator.py --workers 0 1 2 4 8 16 32 --plot docs/images/coordinator.png
     python benchmarks/bench_coordinator.py --set children=12 --set lag=0 --workers 0 8 32   # the paper's form
 """
