@@ -157,6 +157,13 @@ def test_view_save_writes_a_recording_built_from_the_dataset(small_noveb_dataset
     np.testing.assert_array_equal(np.array(contacts), data["observation.contacts"])
     _, images = temporal(chunks, "/head_camera/image", "EncodedImage:blob")
     assert len(images) == len(data["index"])
+    # the masks as the dataset holds them (read back from 16-bit PNG, sent as 8-bit ids the viewer draws)
+    _, masks = temporal(chunks, "/head_camera/segmentation", "SegmentationImage:buffer")
+    stored = load_dataset(small_noveb_dataset, read_run_info(small_noveb_dataset)["repo_id"])
+    assert len(masks) == len(data["index"])
+    for i in (0, len(masks) - 1):
+        want = np.asarray(stored[i]["observation.images.head_segmentation"])[0].astype(np.uint8)
+        np.testing.assert_array_equal(np.asarray(masks[i], dtype=np.uint8).reshape(want.shape), want)
     # a finished run's overview is static: every final position, whatever the timeline
     [(static, batch)] = chunks["/overview/final_tool"]
     final = [r["final_ee_pos"] for r in read_attempts(small_noveb_dataset) if r["feasible"]]

@@ -300,6 +300,7 @@ def _send_views(rec: rr.RecordingStream, eps: list[_Prepared], names: list[str])
                 blob=frames, media_type=["image/png"] * len(frames), meter=[1000.0] * len(frames)
             )
         else:
+            frames = [np.asarray(f, dtype=np.uint8) for f in frames]  # ids < 256; read back from PNG: 16-bit
             h, w = frames[0].shape
             fmt = rr.components.ImageFormat(width=w, height=h, channel_datatype="U8")
             cols = rr.SegmentationImage.columns(buffer=[f.tobytes() for f in frames], format=[fmt] * len(frames))
