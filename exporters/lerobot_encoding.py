@@ -221,6 +221,13 @@ def depth_encoder(mount: str = "fixed"):
 X265_DEPTH_PARAMS = "lossless=1:open-gop=0:pools=1:frame-threads=1:log-level=error"
 
 
+def feature_encoder(feature: dict, codec: str):
+    """The encoder settings LeRobot records for a video feature: its depth encoder for a depth map (by the
+    camera's mount), else the run's colour codec's."""
+    info = feature.get("info") or {}
+    return depth_encoder(info.get("camera.mount", "fixed")) if info.get("is_depth_map") else video_encoder(codec)
+
+
 def encode_depth(depth_mm: np.ndarray, fps: int, mount: str = "fixed") -> tuple[bytes, float]:
     """Encode (T, H, W) uint16 millimetre depth maps as LeRobot's ``encode_video_frames`` does a depth stream
     (its ``quantize_depth``, :func:`depth_encoder`'s settings), from memory. Returns mp4 bytes and duration."""
@@ -243,8 +250,9 @@ def encode_depth(depth_mm: np.ndarray, fps: int, mount: str = "fixed") -> tuple[
 
 
 def encode_png(images: np.ndarray) -> list[bytes]:
-    """(T, H, W) instance ids as 16-bit grey PNG bytes, as LeRobot's image writer saves a single-channel image
-    feature's frames (it takes uint16 or float32 for those); ``LeRobotDataset`` reads them back as the ids."""
+    """(T, H, W) integer images (instance ids; Rerun's depth maps in millimetres) as 16-bit grey PNG bytes, as
+    LeRobot's image writer saves a single-channel image feature's frames (it takes uint16 or float32 for those);
+    ``LeRobotDataset`` reads them back as the ids."""
     import io
 
     from PIL import Image

@@ -17,10 +17,6 @@ import numpy as np
 from babblegen.scene import TaskSpec
 from babblegen.world.settings import CameraView
 
-BACKGROUND, TABLE, FLOOR, ROBOT = 0, 1, 2, 3
-# OpenCV camera axes (x right, y down, z forward) from SAPIEN's (x forward, y left, z up)
-_CV_FROM_SAPIEN = np.array([[0, -1, 0, 0], [0, 0, -1, 0], [1, 0, 0, 0], [0, 0, 0, 1]], dtype=np.float64)
-
 
 def instance_names(object_names: Sequence[str], obstacle_names: Sequence[str] = ()) -> list[str]:
     """Instance id -> name: background, table, floor, robot, the objects, the obstacles."""
@@ -42,17 +38,15 @@ class CameraRig:
         lut = np.zeros(max(sim.segmentation_id_map, default=0) + 1, dtype=np.uint8)
         for seg_id, entity in sim.segmentation_id_map.items():
             kind = type(entity).__name__
-            lut[seg_id] = ROBOT if kind == "Link" else ids.get(entity.name, BACKGROUND)
+            lut[seg_id] = ids["robot"] if kind == "Link" else ids.get(entity.name, ids["background"])
         self._lut = lut
 
-    def read(self, name: str, colour: bool = True) -> dict[str, np.ndarray]:
-        """One camera's images of the scene as last rendered (`capture` first): ``rgb`` (H, W, 3) uint8 when
-        ``colour``, and its view's ``depth`` (H, W) uint16 mm and ``segmentation`` (H, W) uint8 ids."""
+    def read(self, name: str) -> dict[str, np.ndarray]:
+        """One camera's images of the scene as last rendered (`capture` first): ``rgb`` (H, W, 3) uint8, and as
+        its view records them ``depth`` (H, W) uint16 mm and ``segmentation`` (H, W) uint8 ids."""
         view = self.views[name]
-        obs = self.sensors[name].get_obs(rgb=colour, depth=view.depth, segmentation=view.segmentation, position=False)
-        out = {}
-        if colour:
-            out["rgb"] = obs["rgb"][0].numpy()
+        obs = self.sensors[name].get_obs(rgb=True, depth=view.depth, segmentation=view.segmentation, position=False)
+        out = {"rgb": obs["rgb"][0].numpy()}
         if view.depth:
             out["depth"] = obs["depth"][0, ..., 0].numpy().astype(np.uint16)
         if view.segmentation:

@@ -102,7 +102,6 @@ class World:
         self.cameras = CameraRig(self.sim, self.task, self.settings.cameras)
         self._others = [v.name for v in self.settings.cameras if v.name != "head"]
         self._moving = [v.name for v in self.settings.cameras if v.mount == "wrist"]
-        self._head_extras = self.settings.head.depth or self.settings.head.segmentation
 
     def _position_drives(self) -> list | None:
         """The simulator's joints that the agent's joint-position controller drives, in the order of its action,
@@ -247,21 +246,12 @@ class World:
         collection. Each rollout rebuilds the scene (`reset`), and the objects that creates set off full
         collections that would otherwise walk all of those every time: 0.14 s of a 0.17 s reset, a third of
         a typical rollout (``benchmarks/bench_pipeline.py`` shows the reset's share)."""
-        self._render()
         self._render_views(self._others, head=True)  # every camera and kind once
         gc.freeze()
 
     def _render(self) -> np.ndarray:
         """The head camera's colour image of the scene as it is now."""
-        self.sim.scene.update_render()
-        self._camera.capture()
-        return self._camera.get_obs(rgb=True, depth=False, segmentation=False, position=False)["rgb"][0].numpy()
-
-    def _render_head(self) -> dict[str, np.ndarray]:
-        """The head camera's colour and, if recorded, depth and ids, from one pass."""
-        self.sim.scene.update_render()
-        self._camera.capture()
-        return self.cameras.read("head")
+        return self._render_views([], head=True)["head"]["rgb"]
 
     def _render_views(self, names: list[str], head: bool) -> dict[str, dict[str, np.ndarray]]:
         """Every named camera's images (the head camera's too with ``head``) of the scene as it is now."""
@@ -347,11 +337,8 @@ class World:
             nonlocal t_render, touched_since
             if render:
                 t0 = time.perf_counter()
-                if self._head_extras:
-                    head_ends.append(self._render_head())
-                    rec["images"].append(head_ends[-1].pop("rgb"))
-                else:
-                    rec["images"].append(self._render())
+                head_ends.append(self._render_views([], head=True)["head"])  # with its depth and ids, if recorded
+                rec["images"].append(head_ends[-1].pop("rgb"))
                 t_render += time.perf_counter() - t0
             rec["state"].append(np.asarray(self._arm.qpos, dtype=np.float32))
             rec["time"].append(step / s.control_freq)
@@ -396,7 +383,7 @@ class World:
 
         ends = np.stack(rec.pop("images"))
         frames = Frames(**{k: np.stack(v) for k, v in rec.items()}, images=None, end_images=ends)
-        if head_ends:
+        if head_ends[0]:
             frames.end_views = {k: np.stack([e[k] for e in head_ends]) for k in head_ends[0]}
         if not defer_render:
             t_render += self.render_frames(frames)
@@ -440,14 +427,11 @@ class World:
             if not inside and not self._others:
                 continue
             self._pose_scene(frames, t)
-            if not self._others and not self._head_extras:
-                head.append({"rgb": self._render()})
-            else:
-                images = self._render_views(self._others, head=inside)
-                if inside:
-                    head.append(images.pop("head"))
-                for name, got in images.items():
-                    others[name].append(got)
+            images = self._render_views(self._others, head=inside)
+            if inside:
+                head.append(images.pop("head"))
+            for name, got in images.items():
+                others[name].append(got)
             for name in self._moving:
                 poses[name].append(self.cameras.parameters(name)["cam2world"])
             if inside and t % frames_per_step == 0:

@@ -31,21 +31,24 @@ def encode_jpeg(images: np.ndarray, quality: int = JPEG_QUALITY) -> list[bytes]:
     return out
 
 
-def encode_png16(depth_mm: np.ndarray) -> list[bytes]:
-    """(T, H, W) uint16 depth maps as 16-bit PNG bytes (lossless; Rerun decodes them as depth images)."""
-    from PIL import Image
+def encode_view(kind: str, frames: Any, quality: int = JPEG_QUALITY) -> Any:
+    """One camera's frames of one kind as the recording logs them: colour as JPEG, depth as 16-bit PNG (Rerun
+    decodes it as a depth image; frames already encoded, a list of bytes, stay as they are), masks as (T, H, W)
+    uint8 ids (as rendered, or read back from the dataset's 16-bit PNG)."""
+    from ..lerobot_encoding import encode_png
 
-    out = []
-    for d in depth_mm:
-        buf = io.BytesIO()
-        Image.fromarray(np.ascontiguousarray(d, dtype=np.uint16)).save(buf, format="PNG")
-        out.append(buf.getvalue())
-    return out
+    if isinstance(frames, list):
+        return frames
+    if kind == "rgb":
+        return encode_jpeg(np.asarray(frames), quality)
+    if kind == "depth":
+        return encode_png(np.asarray(frames))
+    return np.asarray(frames, dtype=np.uint8)
 
 
 class JpegFrames:
-    """Every camera's frames as the recording logs them: colour as JPEG, depth as 16-bit PNG, masks as they
-    are; a picklable step for the worker-side preparers. Returns {camera: {kind: frames}}."""
+    """Every camera's frames as the recording logs them (`encode_view`); a picklable step for the worker-side
+    preparers. Returns {camera: {kind: frames}}."""
 
     def __init__(self, quality: int = JPEG_QUALITY):
         self.quality = quality
@@ -55,12 +58,7 @@ class JpegFrames:
         for camera, kinds in (getattr(frames, "views", None) or {}).items():
             mine = out.setdefault(camera, {})
             for kind, images in kinds.items():
-                if kind == "rgb":
-                    mine[kind] = encode_jpeg(images, self.quality)
-                elif kind == "depth":
-                    mine[kind] = encode_png16(images)
-                else:
-                    mine[kind] = np.asarray(images, dtype=np.uint8)
+                mine[kind] = encode_view(kind, images, self.quality)
         return out
 
 
@@ -155,10 +153,7 @@ class EpisodeColumns:
         views: dict[str, dict[str, Any]] = {}
         for camera, kinds in (ep.views or {}).items():
             for kind, frames in kinds.items():
-                if kind == "rgb" and not isinstance(frames, list):
-                    frames = encode_jpeg(np.asarray(frames))
-                elif kind == "depth" and not isinstance(frames, list):
-                    frames = encode_png16(np.asarray(frames))
+                frames = encode_view(kind, frames)
                 if camera == "head" and kind == "rgb":
                     jpegs = frames
                 else:
@@ -300,7 +295,6 @@ def _send_views(rec: rr.RecordingStream, eps: list[_Prepared], names: list[str])
                 blob=frames, media_type=["image/png"] * len(frames), meter=[1000.0] * len(frames)
             )
         else:
-            frames = [np.asarray(f, dtype=np.uint8) for f in frames]  # ids < 256; read back from PNG: 16-bit
             h, w = frames[0].shape
             fmt = rr.components.ImageFormat(width=w, height=h, channel_datatype="U8")
             cols = rr.SegmentationImage.columns(buffer=[f.tobytes() for f in frames], format=[fmt] * len(frames))

@@ -112,15 +112,6 @@ class Scene:
         q = np.asarray(state, dtype=np.float64)[:, self._order]
         return self.kin.link_transforms(q)
 
-    def camera_rotation(self) -> np.ndarray:
-        """Columns: the head camera's right, down and forward axes in the world frame (Rerun's RDF)."""
-        cam = self.task["camera"]
-        fwd = np.asarray(cam["target"], float) - np.asarray(cam["eye"], float)
-        fwd /= np.linalg.norm(fwd)
-        right = np.cross(fwd, [0.0, 0.0, 1.0])
-        right /= np.linalg.norm(right)
-        return np.stack([right, np.cross(fwd, right), fwd], axis=1)
-
 
 def _shape_archetype(
     kind: str, sizes: list[np.ndarray], color: tuple[int, ...], poses: np.ndarray | None = None
@@ -143,22 +134,30 @@ def _shape_archetype(
     )
 
 
+def log_frustum(rec: rr.RecordingStream, path: str, cam: dict[str, Any], size: tuple[int, int] | None) -> None:
+    """A camera standing at ``cam["eye"]`` looking at ``cam["target"]`` (OpenCV axes, Rerun's RDF), with its
+    frustum when its image ``size`` (height, width) is known."""
+    import rerun as rr
+
+    from babblegen.world.cameras import look_at_cam2world
+
+    pose = look_at_cam2world(cam["eye"], cam["target"])
+    rec.log(path, rr.Transform3D(translation=pose[:3, 3], mat3x3=pose[:3, :3]), static=True)
+    if size is not None:
+        h, w = size
+        pinhole = rr.Pinhole(fov_y=float(cam["fov"]), aspect_ratio=w / h, width=w, height=h, image_plane_distance=0.25)
+        rec.log(path, pinhole, static=True)
+
+
 def log_cameras(rec: rr.RecordingStream, scene: Scene, cameras: list[dict[str, Any]], size: tuple[int, int]) -> None:
     """The frustums of the fixed cameras other than the head, and the names and colours of the instance ids
     the masks hold (one annotation context for every mask)."""
     import rerun as rr
 
-    from babblegen.world.cameras import look_at_cam2world
-
     for cam in cameras:
-        if cam.get("mount") != "fixed":
-            continue
-        h, w = cam.get("height") or size[0], cam.get("width") or size[1]
-        pose = look_at_cam2world(cam["eye"], cam["target"])
-        path = f"world/{cam['name']}_camera"
-        rec.log(path, rr.Transform3D(translation=pose[:3, 3], mat3x3=pose[:3, :3]), static=True)
-        pinhole = rr.Pinhole(fov_y=float(cam["fov"]), aspect_ratio=w / h, width=w, height=h, image_plane_distance=0.25)
-        rec.log(path, pinhole, static=True)
+        if cam.get("mount") == "fixed":
+            size_here = (cam.get("height") or size[0], cam.get("width") or size[1])
+            log_frustum(rec, f"world/{cam['name']}_camera", cam, size_here)
     if any(cam.get("segmentation") for cam in cameras):
         from babblegen.world.cameras import instance_names
 
@@ -213,15 +212,7 @@ def log_scene(
         else:
             arch = rr.Ellipsoids3D(half_sizes=[[size[0]] * 3], colors=color, fill_mode="solid")
         rec.log(f"world/objects/{name}/shape", arch, static=True)  # posed per frame, see EpisodeColumns
-    cam = scene.task["camera"]
-    rec.log("world/head_camera", rr.Transform3D(translation=cam["eye"], mat3x3=scene.camera_rotation()), static=True)
-    if image_size is not None:
-        h, w = image_size
-        rec.log(
-            "world/head_camera",
-            rr.Pinhole(fov_y=float(cam["fov"]), aspect_ratio=w / h, width=w, height=h, image_plane_distance=0.25),
-            static=True,
-        )
+    log_frustum(rec, "world/head_camera", scene.task["camera"], image_size)
     if cameras and image_size is not None:
         log_cameras(rec, scene, cameras, image_size)
     log_overview_background(rec, scene)
