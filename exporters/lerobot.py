@@ -28,10 +28,9 @@ from babblegen.exporters.lerobot_encoding import (
     DEFAULT_VIDEO_CODEC,
     HEAD,
     EncodedEpisode,
-    depth_encoder,
     encode_episode,
+    feature_encoder,
     features,
-    video_encoder,
 )
 from babblegen.exporters.lerobot_stats import numeric_stats
 from babblegen.store import AttemptRecord, Sink, atomic_write
@@ -216,16 +215,16 @@ class SegmentWriter:
         meta = self.meta
         if first:  # video codec details, read from the first video files as LeRobot's writer does
             for key in meta.video_keys:
-                info = meta.features[key].get("info") or {}
-                is_depth = info.get("is_depth_map", False)
-                encoder = depth_encoder(info.get("camera.mount", "fixed")) if is_depth else video_encoder(self.codec)
-                meta.update_video_info(key, video_encoder=encoder)
+                meta.update_video_info(key, video_encoder=feature_encoder(meta.features[key], self.codec))
         meta.info.total_episodes += len(episodes)
         meta.info.total_frames += sum(len(e) for e in episodes)
         meta.info.total_tasks = len(meta.tasks)
         meta.info.splits = {"train": f"0:{meta.info.total_episodes}"}
         write_info(meta.info, meta.root)
-        meta.stats = aggregate_stats(([meta.stats] if meta.stats is not None else []) + stats)
+        merged = aggregate_stats(([meta.stats] if meta.stats is not None else []) + stats)
+        # in the schema's order: LeRobot's aggregate orders the features by a set, so stats.json's bytes varied
+        # with each process's string hashing
+        meta.stats = {key: merged[key] for key in dict.fromkeys([*meta.features, *merged]) if key in merged}
         write_stats(meta.stats, meta.root)
 
     def _advance(self) -> None:

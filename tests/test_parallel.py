@@ -40,9 +40,10 @@ def assert_same_dataset(a, b) -> None:
     # the same pixels, encoded the same way: worker processes render most frames after the movement
     videos_a, videos_b = video_digests(a), video_digests(b)
     assert videos_a == videos_b and len(videos_a) > 0
-    # the data tables too, byte for byte: they hold the instance masks (PNG)
+    # the data tables too, byte for byte: they hold the instance masks (PNG); and the metadata
     tables_a, tables_b = digests(a, "data/**/*.parquet"), digests(b, "data/**/*.parquet")
     assert tables_a == tables_b and len(tables_a) > 0
+    assert digests(a, "meta/**/*") == digests(b, "meta/**/*")
 
 
 def video_digests(root) -> dict[str, str]:
@@ -50,7 +51,9 @@ def video_digests(root) -> dict[str, str]:
 
 
 def digests(root, pattern: str) -> dict[str, str]:
-    return {str(p.relative_to(root)): hashlib.sha256(p.read_bytes()).hexdigest() for p in root.glob(pattern)}
+    return {
+        str(p.relative_to(root)): hashlib.sha256(p.read_bytes()).hexdigest() for p in root.glob(pattern) if p.is_file()
+    }
 
 
 @pytest.fixture(scope="module")
