@@ -190,6 +190,27 @@ PRESET = {"h264": "veryfast"}  # SVT-AV1: LeRobot's own preset
 ENCODER_THREADS = 1
 
 
+def _x264_asm_below_avx512(cpuinfo: str = "/proc/cpuinfo") -> str | None:
+    """x264's instruction sets for this CPU without AVX-512, where it has AVX-512 (else None: x264's own choice).
+
+    x264's AVX-512 code for macroblock-tree rate control gave different bytes from encode to encode of the same
+    frames in one process, one thread, at widths that are not a multiple of 128 pixels (64, 96, 160, 192
+    measured; 128 and 256 not), as if it read memory nothing wrote; its AVX2 code gives the same bytes every
+    time, and the same bytes as the AVX-512 code where that one is stable (128x128: the default's files are
+    unchanged). Passed to the encoder but not recorded in the dataset: it chooses x264's code, not its output.
+    x264 detects AVX-512 as these five extensions; every such CPU has everything up to AVX2 and fast SSE2."""
+    try:
+        with open(cpuinfo) as lines:
+            flags = next((line.split(":", 1)[1].split() for line in lines if line.startswith("flags")), [])
+    except OSError:
+        return None
+    avx512 = {"avx512f", "avx512dq", "avx512cd", "avx512bw", "avx512vl"}
+    return "SSE2Fast,AVX2" if avx512 <= set(flags) else None
+
+
+X264_ASM = _x264_asm_below_avx512()
+
+
 def video_encoder(codec: str):
     """The encoder settings for ``codec`` (LeRobot's ``RGBEncoderConfig``: its GOP size, the CRF and preset of
     :data:`CRF` and :data:`PRESET`)."""
@@ -200,8 +221,9 @@ def video_encoder(codec: str):
     return RGBEncoderConfig(vcodec=codec, crf=CRF[codec], preset=PRESET.get(codec))
 
 
-def depth_encoder(mount: str = "fixed"):
-    """LeRobot's depth-map encoder (12-bit lossless HEVC) over the range of :data:`DEPTH_NEAR_M`."""
+def depth_encoder(mount: str = "fixed", height: int = 128, width: int = 128):
+    """LeRobot's depth-map encoder (12-bit lossless HEVC) over the range of :data:`DEPTH_NEAR_M`, for maps of
+    ``height`` x ``width`` (:func:`x265_depth_params`)."""
     from lerobot.configs.video import DEPTH_QMAX, DepthEncoderConfig
 
     near = DEPTH_NEAR_M[mount]
@@ -209,23 +231,36 @@ def depth_encoder(mount: str = "fixed"):
         depth_min=near,
         depth_max=round(near + DEPTH_QMAX / 1000.0, 6),
         use_log=False,
-        extra_options={"x265-params": X265_DEPTH_PARAMS},
+        extra_options={"x265-params": x265_depth_params(height, width)},
     )
 
 
-# LeRobot's lossless 12-bit HEVC, with three changes: a closed GOP (with x265's default open GOP, LeRobot's seeking
-# decoder skipped frames after an episode boundary in a concatenated file, FrameTimestampError, on the files of
-# LeRobot's own writer too), one thread (the workers have a core each), and no x265 info lines on the console.
-# x265's "ultrafast" preset encoded 128x128 depth maps in a third of the time but took 2.5x the bytes, and
-# gained nothing measurable in a run's episodes per second (benchmarks/bench_views.py): LeRobot's preset stays.
-X265_DEPTH_PARAMS = "lossless=1:open-gop=0:pools=1:frame-threads=1:log-level=error"
+def x265_depth_params(height: int, width: int) -> str:
+    """LeRobot's lossless 12-bit HEVC, with four changes:
+
+    - a closed GOP: with x265's default open GOP, LeRobot's seeking decoder skipped frames after an episode
+      boundary in a concatenated file (FrameTimestampError), on the files of LeRobot's own writer too;
+    - the largest coding-tree unit (64, 32 or 16 pixels) smaller than both sides: a picture exactly one unit
+      high or wide (64x64, 128x64 with x265's default of 64; 32x32 with 32) came out as different, equally
+      lossless bytes from encode to encode of the same maps, in one process, threads or not; at 128x128 it
+      stays x265's 64, so those files are unchanged (benchmarks/bench_encoding_repeats.py);
+    - one thread (the workers have a core each);
+    - no x265 info lines on the console.
+
+    x265's "ultrafast" preset encoded 128x128 depth maps in a third of the time but took 2.5x the bytes, and
+    gained nothing measurable in a run's episodes per second (benchmarks/bench_views.py): LeRobot's preset stays.
+    """
+    ctu = next((size for size in (64, 32) if min(height, width) > size), 16)
+    return f"lossless=1:open-gop=0:ctu={ctu}:pools=1:frame-threads=1:log-level=error"
 
 
 def feature_encoder(feature: dict, codec: str):
     """The encoder settings LeRobot records for a video feature: its depth encoder for a depth map (by the
     camera's mount), else the run's colour codec's."""
     info = feature.get("info") or {}
-    return depth_encoder(info.get("camera.mount", "fixed")) if info.get("is_depth_map") else video_encoder(codec)
+    if not info.get("is_depth_map"):
+        return video_encoder(codec)
+    return depth_encoder(info.get("camera.mount", "fixed"), *feature["shape"][:2])
 
 
 def encode_depth(depth_mm: np.ndarray, fps: int, mount: str = "fixed") -> tuple[bytes, float]:
@@ -233,7 +268,7 @@ def encode_depth(depth_mm: np.ndarray, fps: int, mount: str = "fixed") -> tuple[
     (its ``quantize_depth``, :func:`depth_encoder`'s settings), from memory. Returns mp4 bytes and duration."""
     from lerobot.datasets.depth_utils import quantize_depth
 
-    encoder = depth_encoder(mount)
+    encoder = depth_encoder(mount, *depth_mm.shape[1:3])
 
     def frame(image: np.ndarray):
         return quantize_depth(
@@ -298,6 +333,8 @@ def _encode(images: np.ndarray, fps: int, encoder, to_frame) -> tuple[bytes, flo
     try:
         with av.open(str(path), "w") as output:
             options = encoder.get_codec_options(ENCODER_THREADS, as_strings=True)
+            if encoder.vcodec in ("h264", "libx264") and X264_ASM is not None:
+                options["x264-params"] = ":".join(filter(None, (options.get("x264-params"), f"asm={X264_ASM}")))
             stream = output.add_stream(encoder.vcodec, fps, options=options)
             stream.pix_fmt = encoder.pix_fmt
             stream.height, stream.width = images.shape[1:3]

@@ -24,6 +24,11 @@ from babblegen.exporters.lerobot_encoding import (
 from babblegen.world.rollout import Frames
 
 
+def _image_size(feats: dict) -> tuple[int, int]:
+    """The height and width of the first video feature (LeRobot takes one depth encoder for every depth map)."""
+    return next(tuple(ft["shape"][:2]) for ft in feats.values() if ft["dtype"] == "video")
+
+
 class ReferenceWriter:
     """Appends episodes to a new LeRobot dataset at `root` through ``LeRobotDataset.save_episode``."""
 
@@ -43,7 +48,7 @@ class ReferenceWriter:
             robot_type=robot_type,
             use_videos=True,
             rgb_encoder=video_encoder(codec),
-            depth_encoder=depth_encoder("fixed"),
+            depth_encoder=depth_encoder("fixed", *_image_size(feats)),
             encoder_threads=ENCODER_THREADS,
         )
         return cls(root, repo_id, ds)

@@ -135,7 +135,7 @@ def test_every_frame_and_image_is_the_same(datasets):
                 assert got[key] == value == TASK
             elif key not in (HEAD, "observation.images.front") or deterministic:  # same encoder, same settings
                 np.testing.assert_array_equal(np.asarray(got[key]), np.asarray(value), err_msg=f"frame {i} {key}")
-            else:  # x264 encodes these synthetic frames slightly differently from run to run (not camera frames)
+            else:  # LeRobot's writer runs x264's AVX-512 code where the CPU has it: not the same bytes every run
                 image = np.asarray(got[key]).transpose(1, 2, 0)
                 errors = np.abs((originals if key == HEAD else shifted) - image).mean(axis=(1, 2, 3))
                 assert errors.argmin() == i and errors[i] < 0.03, f"frame {i}: {errors[i]:.3f}"
