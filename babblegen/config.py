@@ -14,7 +14,7 @@ from typing import Any
 from babblegen.explorers.noveb import NovEBConfig, upgrade_stored_config
 from babblegen.world.settings import LEGACY_CAMERAS, WorldSettings
 
-# The head camera's video codecs (settings: babblegen.exporters.lerobot_encoding.video_encoder). H.264 is the
+# The head camera's video codecs (settings: babblegen.exporters.lerobot_codecs.video_encoder). H.264 is the
 # default: on frames like 128x128 it costs about a third of the CPU time of LeRobot's own default, SVT-AV1, for
 # about the same fidelity and size (benchmarks/bench_codecs.py), and every LeRobot video backend decodes it.
 VIDEO_CODECS = ("h264", "libsvtav1")

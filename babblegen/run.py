@@ -184,7 +184,7 @@ class Run:
             import rerun.blueprint  # noqa: F401
 
     def _features(self) -> dict:
-        from babblegen.exporters.lerobot_encoding import features
+        from babblegen.exporters.lerobot_schema import features
 
         world = self.config.world
         shape = (world.camera_height, world.camera_width)
@@ -194,7 +194,8 @@ class Run:
         """The sinks' per-episode work, done by the worker that ran the movement: the LeRobot episode's video
         and statistics, the Rerun recording's JPEG frames."""
         from babblegen.evaluation import Preparers
-        from babblegen.exporters.lerobot_encoding import EpisodeEncoder, with_default_features
+        from babblegen.exporters.lerobot_encoding import EpisodeEncoder
+        from babblegen.exporters.lerobot_schema import with_default_features
 
         cfg = self.config
         steps = {"lerobot": EpisodeEncoder(cfg.world.fps, with_default_features(self._features()), cfg.video_codec)}

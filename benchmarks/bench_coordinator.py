@@ -43,7 +43,8 @@ def record(n: int, seed: int, config: dict, replay: list[dict] | None = None) ->
     (``prepare``)."""
     from babblegen.descriptors import make_descriptor
     from babblegen.evaluation import Preparers, arm_info, render_and_prepare_stepwise, seeded_rollout, warm_up
-    from babblegen.exporters.lerobot_encoding import EpisodeEncoder, features, with_default_features
+    from babblegen.exporters.lerobot_encoding import EpisodeEncoder
+    from babblegen.exporters.lerobot_schema import features, with_default_features
     from babblegen.exporters.rerun import JpegFrames
     from babblegen.tasks import DEFAULT_TASK, get_task
     from babblegen.world.rollout import Command
@@ -316,7 +317,7 @@ def plot(results: list[dict], label: str, width: int, path: Path) -> None:
 
 def recorded_cameras(root: Path, configured: list[dict]) -> list[dict]:
     """The cameras and kinds a dataset holds (its features), of those its configuration names."""
-    from babblegen.exporters.lerobot_encoding import image_sources
+    from babblegen.exporters.lerobot_schema import image_sources
 
     held = json.loads((root / "meta" / "info.json").read_text())["features"]
     kinds: dict[str, set[str]] = {}

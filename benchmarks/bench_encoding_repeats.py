@@ -4,7 +4,7 @@ worker and with 2), under each encoder setting; the table shows how many episode
 byte string, the bytes and the encoding milliseconds per frame.
 
 Colour (x264): x264's own choice of instruction sets (AVX-512 where the CPU has it) against babblegen's
-(``lerobot_encoding.X264_ASM``). Depth (x265, lossless): coding-tree units of 64 (x265's default), 32 and 16
+(``lerobot_codecs.X264_ASM``). Depth (x265, lossless): coding-tree units of 64 (x265's default), 32 and 16
 pixels, against babblegen's choice for the size (``x265_depth_params``).
 
     python benchmarks/bench_encoding_repeats.py --sides 64 96 128 --episodes 9 --repeats 4
@@ -45,30 +45,32 @@ def render_episodes(side: int, n: int, seed: int) -> list[dict[str, dict[str, np
 
 def x264(asm: str | None):
     """Encode colour with x264 given these instruction sets (None: x264's own choice)."""
-    from babblegen.exporters import lerobot_encoding
+    from babblegen.exporters import lerobot_codecs
+    from babblegen.exporters.lerobot_encoding import encode_video
 
     def encode(images: np.ndarray) -> bytes:
-        kept, lerobot_encoding.X264_ASM = lerobot_encoding.X264_ASM, asm
+        kept, lerobot_codecs.X264_ASM = lerobot_codecs.X264_ASM, asm
         try:
-            return lerobot_encoding.encode_video(images, 10)[0]
+            return encode_video(images, 10)[0]
         finally:
-            lerobot_encoding.X264_ASM = kept
+            lerobot_codecs.X264_ASM = kept
 
     return encode
 
 
 def x265(ctu: int | None, mount: str):
     """Encode millimetre depth with x265 with this coding-tree unit (None: babblegen's choice for the size)."""
-    from babblegen.exporters import lerobot_encoding
+    from babblegen.exporters import lerobot_codecs
+    from babblegen.exporters.lerobot_encoding import encode_depth
 
     def encode(depth: np.ndarray) -> bytes:
-        chosen = lerobot_encoding.x265_depth_params
+        chosen = lerobot_codecs.x265_depth_params
         if ctu is not None:
-            lerobot_encoding.x265_depth_params = lambda h, w: re.sub(r"ctu=\d+", f"ctu={ctu}", chosen(h, w))
+            lerobot_codecs.x265_depth_params = lambda h, w: re.sub(r"ctu=\d+", f"ctu={ctu}", chosen(h, w))
         try:
-            return lerobot_encoding.encode_depth(depth, 10, mount)[0]
+            return encode_depth(depth, 10, mount)[0]
         finally:
-            lerobot_encoding.x265_depth_params = chosen
+            lerobot_codecs.x265_depth_params = chosen
 
     return encode
 
@@ -94,7 +96,7 @@ def repeats(episodes: list[np.ndarray], encode, n: int) -> tuple[int, float, flo
 
 
 def main() -> None:
-    from babblegen.exporters.lerobot_encoding import X264_ASM, x265_depth_params
+    from babblegen.exporters.lerobot_codecs import X264_ASM, x265_depth_params
 
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--sides", type=int, nargs="+", default=[64, 96, 128])

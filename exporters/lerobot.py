@@ -24,14 +24,9 @@ from pathlib import Path
 
 import numpy as np
 
-from babblegen.exporters.lerobot_encoding import (
-    DEFAULT_VIDEO_CODEC,
-    HEAD,
-    EncodedEpisode,
-    encode_episode,
-    feature_encoder,
-    features,
-)
+from babblegen.exporters.lerobot_codecs import feature_encoder
+from babblegen.exporters.lerobot_encoding import DEFAULT_VIDEO_CODEC, EncodedEpisode, encode_episode
+from babblegen.exporters.lerobot_schema import HEAD, features
 from babblegen.exporters.lerobot_stats import numeric_stats
 from babblegen.store import AttemptRecord, Sink, atomic_write
 

@@ -13,14 +13,9 @@ from pathlib import Path
 import numpy as np
 
 from babblegen.exporters.lerobot import import_lerobot
-from babblegen.exporters.lerobot_encoding import (
-    DEFAULT_VIDEO_CODEC,
-    ENCODER_THREADS,
-    camera_images,
-    depth_encoder,
-    image_sources,
-    video_encoder,
-)
+from babblegen.exporters.lerobot_codecs import ENCODER_THREADS, depth_encoder, video_encoder
+from babblegen.exporters.lerobot_encoding import DEFAULT_VIDEO_CODEC, camera_images
+from babblegen.exporters.lerobot_schema import image_sources
 from babblegen.world.rollout import Frames
 
 

@@ -5,8 +5,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from babblegen.exporters import lerobot_encoding
-from babblegen.exporters.lerobot_encoding import encode_depth, encode_video, x265_depth_params
+from babblegen.exporters import lerobot_codecs
+from babblegen.exporters.lerobot_codecs import x265_depth_params
+from babblegen.exporters.lerobot_encoding import encode_depth, encode_video
 
 
 def camera_like(side: int, n: int, seed: int) -> np.ndarray:
@@ -24,7 +25,7 @@ def camera_like(side: int, n: int, seed: int) -> np.ndarray:
 
 def test_the_same_frames_give_the_same_video_whatever_was_encoded_before():
     """x264's AVX-512 code gave a different encoding of these frames at 96 pixels nearly every time (12 of 12
-    episodes without `lerobot_encoding.X264_ASM`); each of 4 episodes encoded twice, another in between. (Depth
+    episodes without `lerobot_codecs.X264_ASM`); each of 4 episodes encoded twice, another in between. (Depth
     maps: a picture one coding unit high did the same, on rendered maps only; tests/test_parallel.py.)"""
     episodes = [camera_like(96, 12 + seed, seed) for seed in range(4)]
     for frames in episodes:
@@ -51,10 +52,10 @@ def test_x264_is_kept_below_avx512_only_where_the_cpu_has_it(tmp_path):
     def cpu(flags: str) -> str | None:
         path = tmp_path / "cpuinfo"
         path.write_text(f"processor\t: 0\nflags\t\t: {flags}\n\nprocessor\t: 1\nflags\t\t: {flags}\n")
-        return lerobot_encoding._x264_asm_below_avx512(str(path))
+        return lerobot_codecs._x264_asm_below_avx512(str(path))
 
     avx2 = "fpu sse sse2 ssse3 sse4_1 sse4_2 avx fma bmi1 bmi2 avx2"
     assert cpu(avx2 + " avx512f avx512dq avx512cd avx512bw avx512vl avx512vbmi") == "SSE2Fast,AVX2"
     assert cpu(avx2) is None
     assert cpu(avx2 + " avx512f avx512cd") is None  # x264 uses AVX-512 only with all five
-    assert lerobot_encoding._x264_asm_below_avx512(str(tmp_path / "missing")) is None
+    assert lerobot_codecs._x264_asm_below_avx512(str(tmp_path / "missing")) is None

@@ -14,8 +14,9 @@ import pytest
 
 from babblegen.config import VIDEO_CODECS
 from babblegen.exporters.lerobot import SegmentWriter, features, load_dataset, rollback, snapshot
-from babblegen.exporters.lerobot_encoding import HEAD, encode_episode
+from babblegen.exporters.lerobot_encoding import encode_episode
 from babblegen.exporters.lerobot_reference import ReferenceWriter
+from babblegen.exporters.lerobot_schema import HEAD
 from babblegen.world.rollout import Frames
 
 FPS, SIDE = 10, 64
@@ -222,7 +223,7 @@ def test_the_data_table_is_byte_for_byte_the_one_hugging_face_encodes():
     from lerobot.datasets.feature_utils import get_hf_features_from_features
 
     from babblegen.exporters.lerobot import arrow_table
-    from babblegen.exporters.lerobot_encoding import with_default_features
+    from babblegen.exporters.lerobot_schema import with_default_features
 
     hf = get_hf_features_from_features(with_default_features(features(JOINTS, OBJECTS, SIDE, SIDE)))
     rng = np.random.default_rng(3)

@@ -76,7 +76,7 @@ def test_two_workers_write_the_same_dataset_as_one(one_worker, tmp_path):
 def test_every_camera_and_kind_is_the_same_with_two_workers_as_with_one(tmp_path):
     """Head, front and wrist cameras, colour, depth and masks: every frame between the first and last is rendered
     after the movement, on whichever worker is free, and encoded there after whatever that worker encoded before
-    (x264's and x265's output depended on that at 64 pixels: `lerobot_encoding`)."""
+    (x264's and x265's output depended on that at 64 pixels: `lerobot_codecs`)."""
     views = ["--cameras", "head,front,wrist", "--depth", "--segmentation", "--max-attempts", "16"]
     runs = {}
     for workers in ("1", "2"):

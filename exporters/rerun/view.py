@@ -64,7 +64,7 @@ def _episode_images(ds, table, episode: int, rows: slice, timestamps: np.ndarray
 
     from PIL import Image
 
-    from ..lerobot_encoding import image_sources
+    from ..lerobot_schema import image_sources
 
     out: dict[str, dict[str, Any]] = {}
     for key, (camera, kind) in image_sources(ds.meta.features).items():

@@ -1,0 +1,105 @@
+"""The video encoders and their settings, as LeRobot's encoder configurations (``RGBEncoderConfig``,
+``DepthEncoderConfig``): the colour codec's quality and preset, the depth maps' quantization and lossless HEVC,
+and what makes both give the same bytes for the same frames in any process."""
+
+from __future__ import annotations
+
+from babblegen.config import VIDEO_CODECS
+
+# Depth maps: LeRobot's 12-bit lossless HEVC, quantized linearly over 4.095 m from a near limit, so that each code
+# is one of the renderer's millimetres: the depth comes back exactly as rendered from the near limit to 4.095 m
+# beyond it (fixed cameras: 0.2 to 4.295 m; the wrist camera, which sees the gripper up close: 0.02 to 4.115 m).
+# Nearer reads as the near limit, farther (and where nothing is seen) as the far one.
+DEPTH_NEAR_M = {"fixed": 0.2, "head": 0.2, "wrist": 0.02}
+
+
+# The constant-quality level and speed preset per codec: LeRobot's defaults for SVT-AV1; for H.264, x264's
+# "veryfast" preset at CRF 22, as faithful to the head camera as x264's defaults (medium, CRF 23) for about half
+# the CPU and 1.04x the bytes, and about as faithful as LeRobot's AV1 default (benchmarks/bench_codecs.py).
+CRF = {"h264": 22, "libsvtav1": 30}
+PRESET = {"h264": "veryfast"}  # SVT-AV1: LeRobot's own preset
+# One encoder thread: episodes are encoded in the workers, one core each. (x264's own threads would compete with
+# the other workers' simulations, and for frames this small they cost more CPU in all and give larger files.)
+ENCODER_THREADS = 1
+
+
+def _x264_asm_below_avx512(cpuinfo: str = "/proc/cpuinfo") -> str | None:
+    """x264's instruction sets for this CPU without AVX-512, where it has AVX-512 (else None: x264's own choice).
+
+    x264's AVX-512 code for macroblock-tree rate control gave different bytes from encode to encode of the same
+    frames in one process, one thread, at widths that are not a multiple of 128 pixels (64, 96, 160, 192
+    measured; 128 and 256 not), as if it read memory nothing wrote; its AVX2 code gives the same bytes every
+    time, and the same bytes as the AVX-512 code where that one is stable (128x128: the default's files are
+    unchanged). Passed to the encoder but not recorded in the dataset: it chooses x264's code, not its output.
+    x264 detects AVX-512 as these five extensions; every such CPU has everything up to AVX2 and fast SSE2."""
+    try:
+        with open(cpuinfo) as lines:
+            flags = next((line.split(":", 1)[1].split() for line in lines if line.startswith("flags")), [])
+    except OSError:
+        return None
+    avx512 = {"avx512f", "avx512dq", "avx512cd", "avx512bw", "avx512vl"}
+    return "SSE2Fast,AVX2" if avx512 <= set(flags) else None
+
+
+X264_ASM = _x264_asm_below_avx512()
+
+
+def video_encoder(codec: str):
+    """The encoder settings for ``codec`` (LeRobot's ``RGBEncoderConfig``: its GOP size, the CRF and preset of
+    :data:`CRF` and :data:`PRESET`)."""
+    from lerobot.configs.video import RGBEncoderConfig
+
+    if codec not in VIDEO_CODECS:
+        raise ValueError(f"unknown video codec {codec!r}; choose one of: {', '.join(VIDEO_CODECS)}")
+    return RGBEncoderConfig(vcodec=codec, crf=CRF[codec], preset=PRESET.get(codec))
+
+
+def depth_encoder(mount: str = "fixed", height: int = 128, width: int = 128):
+    """LeRobot's depth-map encoder (12-bit lossless HEVC) over the range of :data:`DEPTH_NEAR_M`, for maps of
+    ``height`` x ``width`` (:func:`x265_depth_params`)."""
+    from lerobot.configs.video import DEPTH_QMAX, DepthEncoderConfig
+
+    near = DEPTH_NEAR_M[mount]
+    return DepthEncoderConfig(
+        depth_min=near,
+        depth_max=round(near + DEPTH_QMAX / 1000.0, 6),
+        use_log=False,
+        extra_options={"x265-params": x265_depth_params(height, width)},
+    )
+
+
+def x265_depth_params(height: int, width: int) -> str:
+    """LeRobot's lossless 12-bit HEVC, with four changes:
+
+    - a closed GOP: with x265's default open GOP, LeRobot's seeking decoder skipped frames after an episode
+      boundary in a concatenated file (FrameTimestampError), on the files of LeRobot's own writer too;
+    - the largest coding-tree unit (64, 32 or 16 pixels) smaller than both sides: a picture exactly one unit
+      high or wide (64x64, 128x64 with x265's default of 64; 32x32 with 32) came out as different, equally
+      lossless bytes from encode to encode of the same maps, in one process, threads or not; at 128x128 it
+      stays x265's 64, so those files are unchanged (benchmarks/bench_encoding_repeats.py);
+    - one thread (the workers have a core each);
+    - no x265 info lines on the console.
+
+    x265's "ultrafast" preset encoded 128x128 depth maps in a third of the time but took 2.5x the bytes, and
+    gained nothing measurable in a run's episodes per second (benchmarks/bench_views.py): LeRobot's preset stays.
+    """
+    ctu = next((size for size in (64, 32) if min(height, width) > size), 16)
+    return f"lossless=1:open-gop=0:ctu={ctu}:pools=1:frame-threads=1:log-level=error"
+
+
+def feature_encoder(feature: dict, codec: str):
+    """The encoder settings LeRobot records for a video feature: its depth encoder for a depth map (by the
+    camera's mount), else the run's colour codec's."""
+    info = feature.get("info") or {}
+    if not info.get("is_depth_map"):
+        return video_encoder(codec)
+    return depth_encoder(info.get("camera.mount", "fixed"), *feature["shape"][:2])
+
+
+def encoder_options(encoder) -> dict[str, str]:
+    """The options an episode's encoder opens with: LeRobot's for ``encoder`` with :data:`ENCODER_THREADS`,
+    and for x264 the instruction sets of :data:`X264_ASM`."""
+    options = encoder.get_codec_options(ENCODER_THREADS, as_strings=True)
+    if encoder.vcodec in ("h264", "libx264") and X264_ASM is not None:
+        options["x264-params"] = ":".join(filter(None, (options.get("x264-params"), f"asm={X264_ASM}")))
+    return options
