@@ -54,7 +54,7 @@ def video_encoder(codec: str):
     return RGBEncoderConfig(vcodec=codec, crf=CRF[codec], preset=PRESET.get(codec))
 
 
-def depth_encoder(mount: str = "fixed", height: int = 128, width: int = 128):
+def depth_encoder(mount: str, height: int, width: int):
     """LeRobot's depth-map encoder (12-bit lossless HEVC) over the range of :data:`DEPTH_NEAR_M`, for maps of
     ``height`` x ``width`` (:func:`x265_depth_params`)."""
     from lerobot.configs.video import DEPTH_QMAX, DepthEncoderConfig
