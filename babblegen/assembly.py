@@ -16,16 +16,20 @@ def build_explorer(config: RunConfig, arm: dict[str, Any], overrides: dict[str, 
     """The configured explorer, seeded with the run seed; ``arm`` is :func:`babblegen.evaluation.arm_info`'s
     answer and ``overrides`` changes explorer options (benchmarks only)."""
     from babblegen.explorers import make_explorer
+    from babblegen.starts import StartSampler
+    from babblegen.tasks import get_task
 
     options = {**config.explorer_config(), **(overrides or {})}
     if config.explorer != "noveb":
         options.pop("reuse_clones", None)
+    starts = StartSampler(get_task(config.task), config.seed) if config.world.starts == "varied" else None
     return make_explorer(
         config.explorer,
         options,
         rng_seed=config.seed,
         joint_limits=np.asarray(arm["limits"]),
         start_norm=np.asarray(arm["start_norm"]),
+        starts=starts,
     )
 
 

@@ -10,7 +10,13 @@ from pathlib import Path
 
 from babblegen.config import VIDEO_CODECS, ConfigError, RunConfig, default_workers, load_toml, merge
 from babblegen.explorers.noveb import NovEBConfig
-from babblegen.world.settings import CAMERA_PRESETS, WorldSettings, cameras_from_names, default_cameras
+from babblegen.world.settings import (
+    CAMERA_PRESETS,
+    START_MODES,
+    WorldSettings,
+    cameras_from_names,
+    default_cameras,
+)
 
 _N, _W = NovEBConfig(), WorldSettings()
 
@@ -79,9 +85,10 @@ def build_parser() -> argparse.ArgumentParser:
     )
     g.add_argument(
         "--descriptor",
-        choices=sorted(DESCRIPTORS),
+        choices=["auto", *sorted(DESCRIPTORS)],
         default=None,
-        help=f"behaviour descriptor of the outcome image [default: {RunConfig.descriptor}; phash is the paper's]",
+        help="behaviour descriptor of the outcome image; auto: phash16 (the after image) with fixed starts, change16 "
+        "(what changed between the before and after images) with varied ones [default: auto; phash is the paper's]",
     )
     g.add_argument(
         "--population",
@@ -142,6 +149,14 @@ def build_parser() -> argparse.ArgumentParser:
         action=argparse.BooleanOptionalAction,
         default=None,
         help="record each camera's instance masks (background, table, floor, robot, each object) [default: on]",
+    )
+    g.add_argument(
+        "--starts",
+        choices=START_MODES,
+        default=None,
+        help="where episodes start: 'fixed', the paper's scene every time, or 'varied', object layouts drawn from "
+        "the task's regions and settled by physics (NovEB children keep their parent's start unless a start "
+        "mutation draws a new one: [noveb] start_mutation_prob) [default: fixed]",
     )
     g.add_argument(
         "--checkpoint-every",
@@ -205,7 +220,7 @@ def _overrides(args: argparse.Namespace) -> dict:
             "sigma": args.sigma,
             "extend_prob": args.extend_prob,
         },
-        "world": {"camera_width": args.width, "camera_height": args.height, "fps": args.fps},
+        "world": {"camera_width": args.width, "camera_height": args.height, "fps": args.fps, "starts": args.starts},
     }
 
 

@@ -32,7 +32,9 @@ class RunConfig:
     # stop after this many attempted movements (None, or 0 in a file or flag: when the generations end); the
     # default is about what the paper's 2,000 generations of 12 attempt once repeated genomes are reused
     max_attempts: int | None = 8000
-    descriptor: str = "phash16"  # 256-bit pHash of the full head image (the paper: 64-bit "phash")
+    # "auto": with fixed starts a 256-bit pHash of the full head image ("phash16"; the paper: 64-bit "phash"), with
+    # varied starts the pHash of what changed between the before and after images ("change16")
+    descriptor: str = "auto"
     checkpoint_every: int = 10  # generations between commit points (crash-safe resume granularity)
     workers: int = field(default_factory=lambda: default_workers())  # rollout processes: one per core
     ray: str | None = None  # None, "auto" or a cluster address
@@ -59,8 +61,8 @@ class RunConfig:
             raise ConfigError(str(e)) from None
 
     def explorer_config(self) -> dict[str, Any]:
-        """The chosen explorer's options: NovEB's whole section; for random babbling, the batch size, number
-        of batches and novelty measurement, taken from the same section so the two runs compare."""
+        """The chosen explorer's options: NovEB's whole section; for the random controls, the batch size, number
+        of batches and novelty measurement, taken from the same section so the runs compare."""
         noveb = asdict(self.noveb)
         if self.explorer == "noveb":
             return noveb
@@ -69,7 +71,15 @@ class RunConfig:
 
     def descriptor_config(self) -> dict[str, Any]:
         """Keyword arguments of :func:`babblegen.descriptors.make_descriptor` for this run."""
-        return {"name": self.descriptor}
+        return {"name": self.resolved_descriptor()}
+
+    def resolved_descriptor(self) -> str:
+        """The descriptor's name, "auto" chosen by the starts: the after image's pHash when every episode starts
+        from the same scene, what changed between the before and after images when starts vary (an after image
+        alone would reward new starts, not new interactions)."""
+        if self.descriptor != "auto":
+            return self.descriptor
+        return "change16" if self.world.starts == "varied" else "phash16"
 
     def validate(self) -> None:
         """Raise ConfigError for values that cannot work, with the valid choices where there are some."""
@@ -81,10 +91,16 @@ class RunConfig:
             raise ConfigError(f"unknown task {self.task!r}; choose one of: {', '.join(sorted(TASKS))}")
         if self.explorer not in EXPLORERS:
             raise ConfigError(f"unknown explorer {self.explorer!r}; choose one of: {', '.join(sorted(EXPLORERS))}")
-        if self.descriptor not in DESCRIPTORS:
+        if self.descriptor != "auto" and self.descriptor not in DESCRIPTORS:
             raise ConfigError(
-                f"unknown descriptor {self.descriptor!r}; choose one of: {', '.join(sorted(DESCRIPTORS))}"
+                f"unknown descriptor {self.descriptor!r}; choose one of: auto, {', '.join(sorted(DESCRIPTORS))}"
             )
+        if self.world.starts == "varied" and TASKS[self.task].starts is None:
+            raise ConfigError(
+                f"task {self.task!r} declares no start distribution (TaskSpec.starts), so it cannot vary its starts; "
+                "use --starts fixed"
+            )
+        self.descriptor = self.resolved_descriptor()  # stored as chosen
         n = self.noveb
         if n.k >= n.population:
             raise ConfigError(

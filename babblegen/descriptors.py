@@ -15,8 +15,10 @@ import numpy as np
 
 __all__ = [
     "DESCRIPTORS",
+    "ChangePHash",
     "Descriptor",
     "PHash",
+    "describe_rollout",
     "from_hex",
     "make_descriptor",
     "n_words_for",
@@ -153,6 +155,56 @@ class PHash:
         return f"PHash(hash_size={self.hash_size}, crop={self.crop}, highfreq_factor={self.highfreq_factor})"
 
 
+class ChangePHash(PHash):
+    """What the movement changed in the scene, from raw pixels: the pHash of the gated difference between the
+    after and before images. A pixel counts as changed where some channel differs by ``threshold`` or more (of
+    255); fewer than ``min_area`` (a fraction of the image) changed pixels is "nothing changed", one shared code
+    (all zeros, about half the bits away from any hashed change), so flicker and sub-pixel settling earn no
+    novelty. Otherwise the hash is of the changed pixels' magnitude (zero elsewhere): where the scene changed and
+    by how much, not what it looked like. With varied starts the after image differs from episode to episode
+    even when the arm touched nothing; this measures the arm's doing alone. Called with ``before`` too
+    (`describe_rollout`)."""
+
+    compares_before = True
+
+    def __init__(
+        self, hash_size: int = 16, threshold: int = 24, min_area: float = 0.001, name: str = "change16", **kw: Any
+    ) -> None:
+        super().__init__(hash_size=hash_size, name=name, **kw)
+        if not 1 <= int(threshold) <= 255:
+            raise ValueError(f"threshold must be in 1..255, got {threshold}")
+        if not 0.0 <= float(min_area) < 1.0:
+            raise ValueError(f"min_area must be a fraction in [0, 1), got {min_area}")
+        self.threshold, self.min_area = int(threshold), float(min_area)
+
+    def change(self, image: np.ndarray, before: np.ndarray) -> np.ndarray:
+        """(H, W) uint8: each pixel's largest channel difference where it reaches the threshold, 0 elsewhere."""
+        diff = np.abs(np.asarray(image, dtype=np.int16) - np.asarray(before, dtype=np.int16)).max(axis=2)
+        return np.where(diff >= self.threshold, diff, 0).astype(np.uint8)
+
+    def __call__(self, image: np.ndarray, before: np.ndarray | None = None) -> np.ndarray:
+        if before is None:
+            raise ValueError(f"descriptor {self.name!r} compares the after image with the before image: pass both")
+        change = self.change(image, before)
+        if np.count_nonzero(change) < self.min_area * change.size:
+            return np.zeros(self.n_words, dtype=np.uint64)
+        return super().__call__(np.repeat(change[..., None], 3, axis=2))
+
+    def config(self) -> dict[str, Any]:
+        return {**super().config(), "threshold": self.threshold, "min_area": self.min_area}
+
+    def __repr__(self) -> str:
+        return f"ChangePHash(hash_size={self.hash_size}, threshold={self.threshold}, min_area={self.min_area})"
+
+
+def describe_rollout(descriptor: Descriptor, rollout: Any) -> np.ndarray:
+    """A rollout's behaviour code: the descriptor of its after image (and of its before image too, for a
+    descriptor that compares them)."""
+    if getattr(descriptor, "compares_before", False):
+        return descriptor(rollout.after_image, rollout.before_image)  # type: ignore[call-arg]
+    return descriptor(rollout.after_image)
+
+
 # The built-in tabletop's head camera sees the wall and the table's front face above and below the table top;
 # this crop keeps the table top, where every outcome happens (fractions of width and height).
 TABLE_CROP = (0.0, 0.25, 1.0, 0.88)
@@ -161,6 +213,7 @@ DESCRIPTORS: dict[str, Callable[..., Descriptor]] = {
     "phash": lambda **kw: PHash(**{"name": "phash", **kw}),
     "phash16": lambda **kw: PHash(**{"hash_size": 16, "name": "phash16", **kw}),
     "phash16_table": lambda **kw: PHash(**{"hash_size": 16, "crop": TABLE_CROP, "name": "phash16_table", **kw}),
+    "change16": lambda **kw: ChangePHash(**{"name": "change16", **kw}),
 }
 
 

@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 
+from babblegen.descriptors import describe_rollout
 from babblegen.scene import TaskSpec
 from babblegen.world.rollout import Command, Rollout
 from babblegen.world.world import World, WorldSettings
@@ -71,7 +72,7 @@ def seeded_rollout(
     rollout = world.rollout(command, defer_render=defer_render)
     if describe is not None and rollout.feasible:
         t = time.perf_counter()
-        rollout.code = describe(rollout.after_image)
+        rollout.code = describe_rollout(describe, rollout)
         rollout.timings["descriptor"] = time.perf_counter() - t
     if prepare is not None and not defer_render:
         prepare(rollout)

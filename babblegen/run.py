@@ -116,7 +116,8 @@ def check_output(out: Path, resume: bool) -> None:
 
 
 def command_for(candidate) -> Command:
-    return Command(candidate.kind, np.asarray(candidate.genome, dtype=np.float64))
+    start = None if candidate.start is None else candidate.start.layout
+    return Command(candidate.kind, np.asarray(candidate.genome, dtype=np.float64), start)
 
 
 class Run:
@@ -386,11 +387,13 @@ class Run:
 
     def _describe(self, rollouts) -> tuple[list, list[float]]:
         """Each rollout's behaviour code (made where it ran; here for an evaluator that did not) and its seconds."""
+        from babblegen.descriptors import describe_rollout
+
         codes, seconds = [], []
         for r in rollouts:
             if r.feasible and r.code is None:
                 t = time.perf_counter()
-                r.code = self.descriptor(r.after_image)
+                r.code = describe_rollout(self.descriptor, r)
                 r.timings["descriptor"] = time.perf_counter() - t
             codes.append(r.code if r.feasible else None)
             seconds.append(r.timings.pop("descriptor", 0.0))

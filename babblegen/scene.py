@@ -30,6 +30,12 @@ class ObjectSpec:
         return {"box": lambda s: s[2], "cylinder": lambda s: s[1], "sphere": lambda s: s[0]}[self.shape](self.size)
 
     @property
+    def footprint_radius(self) -> float:
+        """Radius of the smallest upright circle around the object's horizontal extent, whatever its yaw."""
+        s = self.size
+        return float(np.hypot(s[0], s[1])) if self.shape == "box" else float(s[0])
+
+    @property
     def volume(self) -> float:
         s = self.size
         return {
@@ -63,6 +69,36 @@ class CameraSpec:
 
 
 @dataclass(frozen=True)
+class PlacementRegion:
+    """Where one object may start (varied starts): its centre uniform in ``x`` x ``y`` (metres, world frame, on the
+    table top) and its yaw uniform in ``yaw`` (radians)."""
+
+    x: tuple[float, float]
+    y: tuple[float, float]
+    yaw: tuple[float, float] = (-np.pi, np.pi)
+
+    def __post_init__(self) -> None:
+        for name in ("x", "y", "yaw"):
+            lo, hi = getattr(self, name)
+            if not lo <= hi:
+                raise ValueError(f"placement region {name} must be (low, high) with low <= high, got {(lo, hi)}")
+
+
+@dataclass(frozen=True)
+class StartDistribution:
+    """A task's varied starts: one region per object (in the task's object order); objects are drawn in turn and a
+    draw is refused when its footprint (the circle around its horizontal extent) comes closer than ``gap`` to an
+    object already placed, to a static obstacle, or to the table's edge. Then physics settles the scene."""
+
+    regions: tuple[PlacementRegion, ...]
+    gap: float = 0.02  # metres between footprints
+
+    def __post_init__(self) -> None:
+        if self.gap < 0:
+            raise ValueError(f"gap must be >= 0, got {self.gap}")
+
+
+@dataclass(frozen=True)
 class TaskSpec:
     """Everything babblegen needs to know about a scene."""
 
@@ -75,6 +111,11 @@ class TaskSpec:
     camera: CameraSpec
     robot_uid: str = "pr2_like_arm"
     extra_obstacles: tuple[Box, ...] = field(default_factory=tuple)
+    starts: StartDistribution | None = None  # where objects may start with ``starts = "varied"`` (None: nowhere)
+
+    def __post_init__(self) -> None:
+        if self.starts is not None and len(self.starts.regions) != len(self.objects):
+            raise ValueError(f"task {self.name!r}: {len(self.objects)} objects but {len(self.starts.regions)} regions")
 
     @property
     def table_top(self) -> float:

@@ -11,6 +11,11 @@ movements the search leaves available to run at once (the attempts of every open
 Per-attempt rows (sidecar layout) go to OUT/<label>.jsonl.
 
     python benchmarks/compare_explorers.py --attempts 1200 --seeds 0 1 2 --jobs 2 --out runs/compare
+    python benchmarks/compare_explorers.py --starts varied --explorers noveb random random_waypoints --seeds 1 2 3
+
+With ``--starts varied`` every row also records its start (the settled poses at the first frame), and the summary
+counts distinct start layouts, distinct changes (object, 2 cm cell of its displacement from its own start), the
+largest move of an untouched object between the first two frames, and starts with an object off the table.
     python benchmarks/compare_explorers.py --explorers noveb --descriptor phash --crop none --out runs/full-frame
 """
 
@@ -31,14 +36,16 @@ def run_one(explorer_name: str, seed: int, attempts: int, out: str, options: dic
 
     from babblegen.assembly import build_descriptor, build_explorer
     from babblegen.config import RunConfig
+    from babblegen.descriptors import describe_rollout
     from babblegen.evaluation import arm_info, seeded_rollout, warm_up
     from babblegen.explorers.base import ask_while_possible
     from babblegen.exporters.report import diversity
+    from babblegen.exporters.sidecar import start_entry
     from babblegen.run import command_for
     from babblegen.tasks import get_task
     from babblegen.world.world import World, WorldSettings
 
-    cfg = RunConfig(explorer=explorer_name, seed=seed)
+    cfg = RunConfig.from_dict({"explorer": explorer_name, "seed": seed, "world": {"starts": options["starts"]}})
     task = get_task(cfg.task)
     settings = WorldSettings(**{**cfg.world.to_dict(), **options.get("world", {})})
     world = World(task, settings, seed=seed)
@@ -46,7 +53,7 @@ def run_one(explorer_name: str, seed: int, attempts: int, out: str, options: dic
     ex = build_explorer(cfg, arm_info(task), options.get("explorer"))
     desc = build_descriptor(cfg, options.get("descriptor"))
     names = task.object_names
-    label = f"{options.get('label', explorer_name)}-{seed}"
+    label = f"{options.get('label', explorer_name)}-{options['starts']}-{seed}"
     path = Path(out) / f"{label}.jsonl"
     t0, clones, available = time.perf_counter(), 0, []
     # the run loop's order of asks and tells (`Run._loop`), so that this explores exactly as `generate` does
@@ -56,7 +63,7 @@ def run_one(explorer_name: str, seed: int, attempts: int, out: str, options: dic
             cands = open_batches.popleft()
             # only the behaviour image is rendered: the frames in between change nothing the search sees
             rollouts = [seeded_rollout(world, command_for(c), seed, c.index, defer_render=True) for c in cands]
-            codes = [desc(r.after_image) if r.feasible else None for r in rollouts]
+            codes = [describe_rollout(desc, r) if r.feasible else None for r in rollouts]
             evals = ex.tell(cands, codes)
             clones += len(ex.last_clones)
             open_batches.extend(ask_while_possible(ex, attempts, cfg.noveb.generations))
@@ -67,6 +74,7 @@ def run_one(explorer_name: str, seed: int, attempts: int, out: str, options: dic
                     "generation": c.generation,
                     "kind": c.kind,
                     "genome": np.asarray(c.genome).tolist(),
+                    "start": start_entry(c),
                     "feasible": r.feasible,
                     "reason": r.reason,
                     "novelty": e.novelty,
@@ -79,13 +87,32 @@ def run_one(explorer_name: str, seed: int, attempts: int, out: str, options: dic
                     row["touched"] = dict(zip(names, map(bool, r.touched), strict=True))
                     row["displacement"] = dict(zip(names, np.round(r.displacement, 6).tolist(), strict=True))
                     row["final_poses"] = dict(zip(names, np.round(r.final_poses, 6).tolist(), strict=True))
+                    row["start_poses"] = dict(zip(names, np.round(r.start_poses, 6).tolist(), strict=True))
+                    first = r.frames.object_poses[:2, :, :3]  # an untouched object's move between frames 0 and 1
+                    step = np.linalg.norm(first[-1] - first[0], axis=1)[~r.frames.contacts[:2].any(axis=0)]
+                    row["first_step_untouched_m"] = round(float(step.max(initial=0.0)), 6)
                 f.write(json.dumps(row) + "\n")
     world.close()
     rows = [json.loads(line) for line in path.read_text().splitlines()]
     executed = [r for r in rows if r["feasible"]]
+    t = task.table
+    off_table = sum(
+        any(
+            abs(p[0] - t.center[0]) > t.half_extents[0]
+            or abs(p[1] - t.center[1]) > t.half_extents[1]
+            or p[2] < task.table_top
+            for p in r["start_poses"].values()
+        )
+        for r in executed
+    )
     return {
         "label": label,
         "explorer": explorer_name,
+        "starts": options["starts"],
+        "starts_not_used": sum(r["reason"].startswith("start_") for r in rows),
+        "starts_off_table": off_table,
+        "first_step_untouched_max_m": max((r["first_step_untouched_m"] for r in executed), default=0.0),
+        "seconds_per_executed": (time.perf_counter() - t0) / max(1, len(executed)),
         "seed": seed,
         "attempts": len(rows),
         "executed": len(executed),
@@ -110,7 +137,10 @@ def main() -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--attempts", type=int, default=1200)
     p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
-    p.add_argument("--explorers", nargs="+", default=["noveb", "random"], choices=["noveb", "random"])
+    p.add_argument(
+        "--explorers", nargs="+", default=["noveb", "random"], choices=["noveb", "random", "random_waypoints"]
+    )
+    p.add_argument("--starts", default="fixed", choices=["fixed", "varied"])
     p.add_argument("--jobs", type=int, default=2)
     p.add_argument("--out", default="runs/compare")
     p.add_argument("--label", default=None, help="name prefix of the rows files (default: the explorer)")
@@ -127,7 +157,7 @@ def main() -> None:
         help="an explorer option, e.g. tie_break=oldest or reuse_clones=false (repeatable)",
     )
     args = p.parse_args()
-    options: dict[str, Any] = {"descriptor": {}, "world": {}, "explorer": {}}
+    options: dict[str, Any] = {"descriptor": {}, "world": {}, "explorer": {}, "starts": args.starts}
     if args.descriptor:
         options["descriptor"]["name"] = args.descriptor
     if args.hash_size:
@@ -149,7 +179,8 @@ def main() -> None:
             opts = {**options, "label": f"{args.label}-{e}" if args.label else e}
             futures.append(pool.submit(run_one, e, s, args.attempts, args.out, opts))
         results = [f.result() for f in futures]
-    (Path(args.out) / f"summary-{args.label or 'compare'}.json").write_text(json.dumps(results, indent=2))
+    summary = f"summary-{args.label or 'compare'}-{args.starts}.json"
+    (Path(args.out) / summary).write_text(json.dumps(results, indent=2))
     keys = (
         "attempts",
         "executed",
@@ -159,6 +190,12 @@ def main() -> None:
         "touching_genomes",
         "moved_cells",
         "novelty_positive_share",
+        "changes",
+        "start_layouts",
+        "starts_not_used",
+        "starts_off_table",
+        "first_step_untouched_max_m",
+        "seconds_per_executed",
         "feasible_share",
         "attempts_per_generation",
         "available_mean",
@@ -170,9 +207,10 @@ def main() -> None:
         print(f"{r['label']:>24} " + " ".join(f"{r[k]:>12.3g}" if r[k] is not None else "n/a" for k in keys))
     for e in args.explorers:
         sub = [r for r in results if r["explorer"] == e]
-        for k in ("touching_genomes", "moved_cells"):
-            v = [r[k] for r in sub]
-            print(f"{e}: {k} {np.mean(v):.1f} +- {np.std(v):.1f} over {len(v)} seeds")
+        for k in ("touching_genomes", "moved_cells", "changes", "start_layouts"):
+            v = [r[k] for r in sub if r[k] is not None]
+            if v:
+                print(f"{e}: {k} {np.mean(v):.1f} +- {np.std(v):.1f} over {len(v)} seeds")
 
 
 if __name__ == "__main__":

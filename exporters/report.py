@@ -102,12 +102,24 @@ def _genome_key(row: dict[str, Any]) -> str:
     return f"{row.get('kind', '')}:{json.dumps(row.get('genome'))}"
 
 
+def _episode_key(row: dict[str, Any]) -> str:
+    """The same movement from the same start (a varied start's layout; fixed starts are all one)."""
+    return f"{_genome_key(row)}@{json.dumps((row.get('start') or {}).get('layout'))}"
+
+
+def _cell(v: float) -> int:
+    return math.floor(v / CELL)
+
+
 def diversity(rows: list[dict[str, Any]], object_names: list[str]) -> dict[str, Any]:
     """How many distinct interactions a run's rows hold, the measures a dataset is worth judging by.
 
-    ``duplicate_episodes``: executed rows whose genome was executed before. ``touching_genomes``: distinct
-    genomes whose movement touched any object (per object in ``touching_genomes_per_object``). ``moved_cells``:
-    distinct (object, 2 cm cell) pairs of the final positions of objects displaced by more than 1 cm.
+    ``duplicate_episodes``: executed rows whose genome was executed before from the same start.
+    ``touching_genomes``: distinct genomes whose movement touched any object (per object in
+    ``touching_genomes_per_object``). ``moved_cells``: distinct (object, 2 cm cell) pairs of the final positions of
+    objects displaced by more than 1 cm. ``changes``: distinct (object, 2 cm cell of its displacement from the
+    episode's own start) pairs of those objects. ``start_layouts``: distinct start layouts (every object's start
+    xy on a 2 cm grid).
     ``novelty_positive_share``: executed rows with novelty > 0. ``distinct_outcomes``: distinct final layouts
     (every object's final xy on a 1 cm grid), beside ``distinct_descriptors``, how many the descriptor told apart.
     """
@@ -116,19 +128,28 @@ def diversity(rows: list[dict[str, Any]], object_names: list[str]) -> dict[str, 
     duplicates = 0
     touching: dict[str, set[str]] = {name: set() for name in object_names}
     cells: dict[str, set[tuple[int, int]]] = {name: set() for name in object_names}
+    episodes: set[str] = set()
+    changes: set[tuple[str, int, int]] = set()
+    layouts: set[tuple[int, ...]] = set()
     for r in executed:
         key = _genome_key(r)
-        duplicates += key in seen
+        duplicates += _episode_key(r) in episodes
+        episodes.add(_episode_key(r))
         seen.add(key)
         touched = r.get("touched") or {}
         displacement = r.get("displacement") or {}
         final = r.get("final_poses") or {}
+        start = r.get("start_poses") or {}
+        if set(object_names) <= set(start):
+            layouts.add(tuple(_cell(v) for name in object_names for v in start[name][:2]))
         for name in object_names:
             if touched.get(name):
                 touching[name].add(key)
             if float(displacement.get(name, 0.0)) > CELL / 2 and name in final:
                 x, y = final[name][:2]
-                cells[name].add((math.floor(x / CELL), math.floor(y / CELL)))
+                cells[name].add((_cell(x), _cell(y)))
+                if name in start:
+                    changes.add((name, _cell(x - start[name][0]), _cell(y - start[name][1])))
     positive = sum(float(r.get("novelty") or 0.0) > 0 for r in executed)
     outcomes = {
         tuple(math.floor(v / OUTCOME_GRID) for name in object_names for v in r["final_poses"][name][:2])
@@ -143,6 +164,8 @@ def diversity(rows: list[dict[str, Any]], object_names: list[str]) -> dict[str, 
         "touching_genomes_per_object": {name: len(v) for name, v in touching.items()},
         "moved_cells": sum(len(v) for v in cells.values()),
         "moved_cells_per_object": {name: len(v) for name, v in cells.items()},
+        "changes": len(changes) if layouts else None,
+        "start_layouts": len(layouts) if layouts else None,
         "novelty_positive_share": positive / len(executed) if executed else None,
         "distinct_outcomes": len(outcomes),
         "distinct_descriptors": len(descriptors) if descriptors else None,
@@ -372,7 +395,11 @@ def markdown(summaries: list[dict[str, Any]], labels: list[str], comparison: dic
     body += row("contacts per attempt", [s["contacts_per_attempt"] for s in summaries])
     body += row("clones (children repeating a tried genome; not simulated)", [s.get("clones") for s in summaries])
     body += row("distinct genomes executed", [s.get("distinct_genomes_executed") for s in summaries])
-    body += row("duplicate episodes (genome executed before)", [s.get("duplicate_episodes") for s in summaries])
+    body += row(
+        "duplicate episodes (genome executed before from the same start)",
+        [s.get("duplicate_episodes") for s in summaries],
+    )
+    body += row("distinct start layouts (2 cm grid)", [s.get("start_layouts") for s in summaries])
     body += row("distinct genomes touching any object", [s.get("touching_genomes") for s in summaries])
     for name in objects:
         body += row(
@@ -380,6 +407,7 @@ def markdown(summaries: list[dict[str, Any]], labels: list[str], comparison: dic
             [s.get("touching_genomes_per_object", {}).get(name) for s in summaries],
         )
     body += row("moved objects' final positions: occupied 2 cm cells", [s.get("moved_cells") for s in summaries])
+    body += row("distinct changes (object, 2 cm cell of its displacement)", [s.get("changes") for s in summaries])
     body += row("executed attempts with novelty > 0", [s.get("novelty_positive_share") for s in summaries])
     body += row("distinct outcomes (final layouts, 1 cm grid)", [s.get("distinct_outcomes") for s in summaries])
     body += row("distinct behaviour descriptors", [s.get("distinct_descriptors") for s in summaries])

@@ -127,6 +127,7 @@ def attempt_row(
         "archived": evaluation.archived,
         "ee_targets": None if rollout.ee_targets is None else np.round(rollout.ee_targets, 5).tolist(),
         "planner": rollout.planner,
+        "start": start_entry(cand),
     }
     if rollout.feasible:
         names = object_names
@@ -135,11 +136,28 @@ def attempt_row(
             n_frames=len(rollout.frames),
             touched={n: bool(t) for n, t in zip(names, rollout.touched, strict=True)},
             contact_frames={n: int(c) for n, c in zip(names, contact_frames, strict=True)},
+            start_poses={n: np.round(p, 6).tolist() for n, p in zip(names, rollout.start_poses, strict=True)},
             displacement={n: round(float(d), 6) for n, d in zip(names, rollout.displacement, strict=True)},
             final_poses={n: np.round(p, 6).tolist() for n, p in zip(names, rollout.final_poses, strict=True)},
             final_ee_pos=_final_tool_point(rollout),
         )
     return row
+
+
+def start_entry(item: Any) -> dict[str, Any]:
+    """Where an attempt (or clone) started: ``{"source": "task"}`` (the task's fixed scene), or a varied start,
+    ``"drawn"`` for this attempt or ``"inherited"`` from its parent, with the attempt index it was drawn for
+    (``drawn_at``: `babblegen.starts.StartSampler.draw` rebuilds it from that and the run seed) and its layout
+    (x, y, yaw per object, before settling)."""
+    start = item.start
+    if start is None:
+        return {"source": "task"}
+    drawn = start.drawn_at == getattr(item, "index", None)
+    return {
+        "source": "drawn" if drawn else "inherited",
+        "drawn_at": start.drawn_at,
+        "layout": np.asarray(start.layout).tolist(),
+    }
 
 
 def _final_tool_point(rollout: Any) -> list[float]:
@@ -159,6 +177,7 @@ def clone_row(clone: Any) -> dict[str, Any]:
         "genome": np.asarray(clone.genome).tolist(),
         "parent": clone.parent,
         "source": clone.source,
+        "start": start_entry(clone),
         "novelty": clone.novelty,
         "survived": clone.survived,
     }

@@ -4,7 +4,7 @@ another object). Objects are light enough to move on contact."""
 
 from __future__ import annotations
 
-from babblegen.scene import CameraSpec, ObjectSpec, TaskSpec, WorkspaceBox
+from babblegen.scene import CameraSpec, ObjectSpec, PlacementRegion, StartDistribution, TaskSpec, WorkspaceBox
 from babblegen.world.collision import Box
 
 from .registry import register_task
@@ -28,5 +28,15 @@ SPEC = register_task(
         workspace=WorkspaceBox(low=(0.45, -0.55, TABLE_TOP), high=(1.05, 0.35, TABLE_TOP + 0.30)),
         # PR2's head camera: 0.38 m above the shoulders, tilted down at the table
         camera=CameraSpec(eye=(0.05, 0.0, 1.32), target=(0.88, -0.08, TABLE_TOP), fov=0.92),
+        # varied starts: each object anywhere in a wide region around its place in the paper's scene (the regions
+        # overlap; footprints keep 2 cm apart), any yaw; the ball stays in the back half, beyond the arm's reach
+        starts=StartDistribution(
+            regions=(
+                PlacementRegion(x=(0.60, 0.98), y=(0.02, 0.45)),  # gray box: left
+                PlacementRegion(x=(0.58, 0.92), y=(-0.32, 0.14)),  # can: front centre
+                PlacementRegion(x=(0.60, 0.98), y=(-0.52, -0.16)),  # blue box: right
+                PlacementRegion(x=(0.98, 1.25), y=(-0.40, 0.25)),  # ball: back
+            ),
+        ),
     )
 )

@@ -171,9 +171,10 @@ def test_impossible_values_are_refused(tmp_path, capsys, flags, message):
     ("flags", "message"),
     [
         (["--max-attempts", "-3"], "must not be negative"),
-        (["--explorer", "genetic"], "invalid choice: 'genetic' (choose from 'noveb', 'random')"),
+        (["--explorer", "genetic"], "invalid choice: 'genetic' (choose from 'noveb', 'random', 'random_waypoints')"),
         (["--task", "kitchen"], "invalid choice: 'kitchen' (choose from 'noveb_tabletop'"),
         (["--video-codec", "vp9"], "invalid choice: 'vp9' (choose from 'h264', 'libsvtav1')"),
+        (["--starts", "random"], "invalid choice: 'random' (choose from 'fixed', 'varied')"),
     ],
 )
 def test_bad_flags_exit_2_with_the_valid_choices(tmp_path, capsys, flags, message):
@@ -181,6 +182,15 @@ def test_bad_flags_exit_2_with_the_valid_choices(tmp_path, capsys, flags, messag
         main(["generate", "--out", str(tmp_path / "ds"), *flags])
     assert exc.value.code == 2
     assert message in capsys.readouterr().err
+
+
+def test_bad_start_modes_in_a_config_file_write_nothing(tmp_path, capsys):
+    out = tmp_path / "ds"
+    (tmp_path / "run.toml").write_text('[world]\nstarts = "shuffled"\n')
+    assert main(["generate", "--out", str(out), "--config", str(tmp_path / "run.toml")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["babblegen: error: [world] unknown starts 'shuffled'; choose one of: fixed, varied"]
+    assert not out.exists()
 
 
 def test_generate_help_states_each_default_once(capsys):

@@ -7,6 +7,7 @@ from babblegen.explorers import (
     NovEB,
     NovEBConfig,
     RandomBabbling,
+    RandomWaypoints,
     make_explorer,
 )
 from babblegen.explorers.base import Candidate
@@ -51,7 +52,7 @@ def make_noveb(seed: int = 7, **cfg) -> NovEB:
 
 
 def test_registry_and_config_defaults():
-    assert {"noveb": NovEB, "random": RandomBabbling} == EXPLORERS
+    assert {"noveb": NovEB, "random": RandomBabbling, "random_waypoints": RandomWaypoints} == EXPLORERS
     cfg = NovEBConfig()
     assert (cfg.population, cfg.generations, cfg.k) == (12, 2000, 3)
     assert (cfg.mutation_prob, cfg.sigma, cfg.extend_prob, cfg.crossover_prob) == (0.3, 0.3, 0.05, 0.0)

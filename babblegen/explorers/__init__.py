@@ -9,7 +9,12 @@ import numpy as np
 
 from babblegen.explorers.base import Candidate, Evaluation, Explorer
 from babblegen.explorers.noveb import NovEB, NovEBConfig
-from babblegen.explorers.random_babbling import RandomBabbling, RandomBabblingConfig
+from babblegen.explorers.random_babbling import (
+    RandomBabbling,
+    RandomBabblingConfig,
+    RandomWaypoints,
+    RandomWaypointsConfig,
+)
 
 __all__ = [
     "EXPLORERS",
@@ -20,10 +25,16 @@ __all__ = [
     "NovEBConfig",
     "RandomBabbling",
     "RandomBabblingConfig",
+    "RandomWaypoints",
+    "RandomWaypointsConfig",
     "make_explorer",
 ]
 
-EXPLORERS: dict[str, type[Explorer]] = {"noveb": NovEB, "random": RandomBabbling}
+EXPLORERS: dict[str, type[Explorer]] = {
+    "noveb": NovEB,
+    "random": RandomBabbling,
+    "random_waypoints": RandomWaypoints,
+}
 
 
 def make_explorer(
@@ -32,12 +43,14 @@ def make_explorer(
     rng_seed: int = 0,
     joint_limits: np.ndarray | None = None,
     start_norm: np.ndarray | None = None,
+    starts: Any = None,
 ) -> Explorer:
     """Build a registered explorer.
 
     ``config`` is ``None`` (defaults), a dict of options, or the explorer's config dataclass. NovEB needs
     ``start_norm`` (the start pose in normalised workspace coordinates), random babbling ``joint_limits``
-    (``(7, 2)`` radians); each ignores the other.
+    (``(7, 2)`` radians); each ignores the other. ``starts`` (a `babblegen.starts.StartSampler`) draws varied
+    starts; None runs every attempt from the task's fixed scene.
     """
     try:
         cls = EXPLORERS[name]
@@ -47,6 +60,6 @@ def make_explorer(
         raise TypeError(f"config must be None, a dict or a config dataclass, got {type(config).__name__}")
     if cls is NovEB and start_norm is None:
         raise ValueError("explorer 'noveb' needs start_norm")
-    if cls is RandomBabbling and joint_limits is None:
-        raise ValueError("explorer 'random' needs joint_limits")
-    return cls(config, rng_seed, joint_limits=joint_limits, start_norm=start_norm)  # type: ignore[call-arg]
+    if issubclass(cls, RandomBabbling) and joint_limits is None:
+        raise ValueError(f"explorer {name!r} needs joint_limits")
+    return cls(config, rng_seed, joint_limits=joint_limits, start_norm=start_norm, starts=starts)  # type: ignore[call-arg]

@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from babblegen.novelty import Archive, make_archive_policy
+from babblegen.starts import Start, StartSampler
 
 __all__ = [
     "Batch",
@@ -31,6 +32,7 @@ __all__ = [
 
 KIND_WAYPOINTS = "ee_waypoints"
 KIND_JOINTS = "joint_target"
+NEW_START = "new"  # a proposal's start: draw a new one for the attempt it becomes (`StartSampler.draw`)
 
 
 @dataclass
@@ -42,6 +44,7 @@ class Candidate:
     kind: str  # "ee_waypoints" (genome = (n, 3) normalised waypoints) or "joint_target" (genome = (7,) rad)
     genome: np.ndarray
     parent: int | None  # attempt index of the parent, None for random ones
+    start: Start | None = None  # the varied start it runs from (None: the task's fixed scene)
 
 
 @dataclass
@@ -58,12 +61,15 @@ class Clone:
     source: int  # attempt index whose outcome (descriptor, or infeasibility) it reuses
     novelty: float | None = None  # set by tell; None when the source was infeasible
     survived: bool = False  # set by tell: kept as a parent
+    start: Start | None = None  # the varied start it (and its source) ran from
 
 
-def genome_key(kind: str, genome: np.ndarray) -> str:
-    """Identity of a command: equal keys mean the same movement (the world is deterministic). A 128-bit digest
-    of the exact float64 bytes, so the run state stays small however long genomes grow."""
+def genome_key(kind: str, genome: np.ndarray, start: Start | None = None) -> str:
+    """Identity of a command: equal keys mean the same movement from the same start (the world is deterministic).
+    A 128-bit digest of the exact float64 bytes, so the run state stays small however long genomes grow."""
     raw = np.ascontiguousarray(genome, dtype=np.float64).tobytes()
+    if start is not None:
+        raw += b"start" + start.key()
     return f"{kind}:{hashlib.blake2b(raw, digest_size=16).hexdigest()}"
 
 
@@ -193,8 +199,9 @@ class ArchiveExplorer(Explorer):
     config_class: type
     max_open = 1
 
-    def __init__(self, config: Any, rng_seed: int) -> None:
+    def __init__(self, config: Any, rng_seed: int, starts: StartSampler | None = None) -> None:
         self.config = build_config(self.config_class, config)
+        self.starts = starts  # None: every attempt starts from the task's fixed scene
         self.rng = np.random.default_rng(rng_seed)
         self.archive = Archive()
         self.policy = self._make_policy()
@@ -238,8 +245,9 @@ class ArchiveExplorer(Explorer):
         return self._copies(self._open[-1].candidates)
 
     @abstractmethod
-    def _propose(self) -> list[tuple[str, np.ndarray, int | None]]:
-        """The next batch's proposals as (kind, genome, parent attempt)."""
+    def _propose(self) -> list[tuple[str, np.ndarray, int | None, Start | str | None]]:
+        """The next batch's proposals as (kind, genome, parent attempt, start): with varied starts a start is a
+        parent's `Start` or ``NEW_START``, drawn for the attempt the proposal becomes; None with fixed starts."""
 
     def _make_policy(self):
         name = getattr(self.config, "archive_policy", "most_novel")
@@ -251,28 +259,33 @@ class ArchiveExplorer(Explorer):
     def _load_extra_state(self, state: dict[str, Any]) -> None:
         pass
 
-    def _open_batch(self, batch: list[tuple[str, np.ndarray, int | None]], max_new: int | None) -> None:
-        """Split proposed (kind, genome, parent) into candidates to evaluate and clones of tried genomes.
+    def _open_batch(self, batch: list[tuple[str, np.ndarray, int | None, Any]], max_new: int | None) -> None:
+        """Split proposed (kind, genome, parent, start) into candidates to evaluate and clones of tried genomes.
 
-        With ``reuse_clones`` (the default) a genome tried before, still in flight in an earlier open batch, or
-        proposed twice in this batch, becomes a `Clone` of that attempt (resolved when its batch is told, which is
-        never before the attempt it copies); otherwise every proposal is evaluated (the paper's literal
-        re-simulation). ``max_new`` caps the candidates (the run's last generation); proposals past it are
+        A ``NEW_START`` is drawn for the attempt index the proposal gets, so it is never a clone. With
+        ``reuse_clones`` (the default) a genome tried before from the same start, still in flight in an earlier
+        open batch, or proposed twice in this batch, becomes a `Clone` of that attempt (resolved when its batch is
+        told, which is never before the attempt it copies); otherwise every proposal is evaluated (the paper's
+        literal re-simulation). ``max_new`` caps the candidates (the run's last generation); proposals past it are
         dropped.
         """
         reuse = bool(getattr(self.config, "reuse_clones", True))
         generation = self._generation + len(self._open)
         cands: list[Candidate] = []
         clones: list[Clone] = []
-        for kind, genome, parent in batch:
-            key = genome_key(kind, genome)
+        for kind, genome, parent, start in batch:
+            if isinstance(start, str):  # NEW_START
+                if max_new is not None and len(cands) >= max_new:
+                    continue
+                start = self.starts.draw(self._next_index)
+            key = genome_key(kind, genome, start)
             if reuse and key in self._outcomes:
-                clones.append(Clone(generation, kind, genome, parent, self._outcomes[key][0]))
+                clones.append(Clone(generation, kind, genome, parent, self._outcomes[key][0], start=start))
             elif reuse and key in self._in_flight:
-                clones.append(Clone(generation, kind, genome, parent, self._in_flight[key]))
+                clones.append(Clone(generation, kind, genome, parent, self._in_flight[key], start=start))
             elif max_new is None or len(cands) < max_new:
                 self._in_flight.setdefault(key, self._next_index)
-                cands.append(Candidate(self._next_index, generation, kind, genome, parent))
+                cands.append(Candidate(self._next_index, generation, kind, genome, parent, start))
                 self._next_index += 1
         self._open.append(Batch(generation, cands, clones))
 
@@ -295,11 +308,11 @@ class ArchiveExplorer(Explorer):
     def _resolve(self, codes: list[np.ndarray | None]) -> list[np.ndarray | None]:
         """Record the oldest batch's told outcomes; return each of its clones' reused descriptor."""
         for c, code in zip(self._pending, codes, strict=True):
-            key = genome_key(c.kind, c.genome)
+            key = genome_key(c.kind, c.genome, c.start)
             self._outcomes[key] = (c.index, code)
             if self._in_flight.get(key) == c.index:
                 del self._in_flight[key]
-        return [self._outcomes[genome_key(c.kind, c.genome)][1] for c in self._pending_clones]
+        return [self._outcomes[genome_key(c.kind, c.genome, c.start)][1] for c in self._pending_clones]
 
     def _close_batch(self) -> None:
         self.last_clones = self._open.pop(0).clones
@@ -315,8 +328,8 @@ class ArchiveExplorer(Explorer):
             "open": [
                 {
                     "generation": b.generation,
-                    "candidates": [dataclasses.asdict(c) for c in b.candidates],
-                    "clones": [dataclasses.asdict(c) for c in b.clones],
+                    "candidates": [_stored(c) for c in b.candidates],
+                    "clones": [_stored(c) for c in b.clones],
                 }
                 for b in self._open
             ],
@@ -342,8 +355,8 @@ class ArchiveExplorer(Explorer):
         self._open = [
             Batch(
                 int(b["generation"]),
-                [Candidate(**{**c, "genome": np.array(c["genome"])}) for c in b["candidates"]],
-                [Clone(**{**c, "genome": np.array(c["genome"])}) for c in b["clones"]],
+                [Candidate(**_loaded(c)) for c in b["candidates"]],
+                [Clone(**_loaded(c)) for c in b["clones"]],
             )
             for b in batches
         ]
@@ -351,7 +364,7 @@ class ArchiveExplorer(Explorer):
         self._in_flight = {}
         for b in self._open:
             for c in b.candidates:
-                self._in_flight.setdefault(genome_key(c.kind, c.genome), c.index)
+                self._in_flight.setdefault(genome_key(c.kind, c.genome, c.start), c.index)
         self.archive = Archive()
         self.archive.load_state_dict(state["archive"])
         self._load_extra_state(state)
@@ -360,6 +373,18 @@ class ArchiveExplorer(Explorer):
     def _stored_config(cls, config: dict[str, Any]) -> dict[str, Any]:
         """A configuration as a checkpoint stored it, in this version's terms (subclasses upgrade old ones)."""
         return config
+
+
+def _stored(item: Candidate | Clone) -> dict[str, Any]:
+    """A candidate or clone as the checkpoint stores it (its start as plain values, none with fixed starts)."""
+    out = dataclasses.asdict(item)
+    out["start"] = None if item.start is None else item.start.to_dict()
+    return out
+
+
+def _loaded(stored: dict[str, Any]) -> dict[str, Any]:
+    """`_stored`'s inverse, as keyword arguments (checkpoints stored before starts varied have none)."""
+    return {**stored, "genome": np.array(stored["genome"]), "start": Start.from_dict(stored.get("start"))}
 
 
 def build_config[C](cls: type[C], config: C | dict[str, Any] | None) -> C:

@@ -26,6 +26,7 @@ import numpy as np
 
 from babblegen.explorers.base import (
     KIND_WAYPOINTS,
+    NEW_START,
     ArchiveExplorer,
     Candidate,
     Evaluation,
@@ -33,6 +34,7 @@ from babblegen.explorers.base import (
 from babblegen.genome import crossover, extend, gaussian_mutation, random_genome, waypoint_mutation
 from babblegen.novelty import ARCHIVE_POLICIES, novelty
 from babblegen.selection import binary_tournament, crowding_distance, non_dominated_sort, nsga2_select
+from babblegen.starts import Start, StartSampler
 
 __all__ = ["NovEB", "NovEBConfig", "upgrade_stored_config"]
 
@@ -67,6 +69,8 @@ class NovEBConfig:
     mutation_scope: str = "waypoint"  # noise on one waypoint drawn at random ("genome": on all, the paper)
     reuse_clones: bool = True
     max_waypoints: int | None = None  # extension stops at this many waypoints (None: unbounded, the paper)
+    # with varied starts: a child runs from its parent's start, or, with this probability, from a new one
+    start_mutation_prob: float = 0.5
 
     def __post_init__(self) -> None:
         if int(self.population) != self.population or self.population < 2:
@@ -79,7 +83,7 @@ class NovEBConfig:
             raise ValueError(f"generations must be an integer >= 1, got {self.generations}")
         if int(self.k) != self.k or self.k < 1:
             raise ValueError(f"k must be an integer >= 1, got {self.k}")
-        for name in ("mutation_prob", "extend_prob", "crossover_prob"):
+        for name in ("mutation_prob", "extend_prob", "crossover_prob", "start_mutation_prob"):
             p = getattr(self, name)
             if not 0.0 <= p <= 1.0:
                 raise ValueError(f"{name} must be a probability in [0, 1], got {p}")
@@ -127,8 +131,9 @@ class NovEB(ArchiveExplorer):
         *,
         start_norm: np.ndarray,
         joint_limits: np.ndarray | None = None,
+        starts: StartSampler | None = None,
     ) -> None:
-        super().__init__(config, rng_seed)
+        super().__init__(config, rng_seed, starts)
         start = np.asarray(start_norm, dtype=np.float64)
         if start.shape != (3,) or not np.all(np.isfinite(start)):
             raise ValueError(f"start_norm must be a finite (3,) array, got {start}")
@@ -138,6 +143,7 @@ class NovEB(ArchiveExplorer):
         self._parent_codes = np.zeros((0, 1), dtype=np.uint64)
         self._parent_index = np.zeros(0, dtype=np.int64)
         self._parent_novelty = np.zeros(0, dtype=np.float64)
+        self._parent_starts: list[Start | None] = []  # the start each parent ran from (None: fixed starts)
 
     # ------------------------------------------------------------------ properties
     @property
@@ -155,14 +161,18 @@ class NovEB(ArchiveExplorer):
             return True
         return bool(self._parents) and len(self._open) <= self.config.lag
 
-    def _propose(self) -> list[tuple[str, np.ndarray, int | None]]:
+    def _propose(self) -> list[tuple[str, np.ndarray, int | None, Start | str | None]]:
         if not self._parents:
-            proposals = [(random_genome(self.rng), None) for _ in range(self.config.population)]
+            new = NEW_START if self.starts is not None else None
+            proposals = [(random_genome(self.rng), None, new) for _ in range(self.config.population)]
         else:
             proposals = self._make_children()
-        return [(KIND_WAYPOINTS, g, p) for g, p in proposals]
+        return [(KIND_WAYPOINTS, g, p, start) for g, p, start in proposals]
 
-    def _make_children(self) -> list[tuple[np.ndarray, int]]:
+    def _make_children(self) -> list[tuple[np.ndarray, int, Start | str | None]]:
+        """Children of the current parents. A crossover child runs from the start of the parent whose first
+        waypoints it keeps (the tournament's first winner), as any other child does, unless a start mutation
+        draws it a new one."""
         cfg = self.config
         n = cfg.children
         objectives = self._parent_novelty[:, None]
@@ -170,7 +180,10 @@ class NovEB(ArchiveExplorer):
         crowd = crowding_distance(objectives, rank)
         first = binary_tournament(rank, crowd, n, self.rng)
         mates = binary_tournament(rank, crowd, n, self.rng)
-        draws = self.rng.random((n, 3))  # crossover, mutation, extension decisions
+        varied = self.starts is not None
+        # crossover, mutation, extension decisions (and with varied starts, start mutation: fixed starts draw what
+        # they always drew)
+        draws = self.rng.random((n, 4 if varied else 3))
         children = []
         for i in range(n):
             p = int(first[i])
@@ -182,7 +195,10 @@ class NovEB(ArchiveExplorer):
                 g = mutate(g, cfg.sigma, self.rng)
             if draws[i, 2] < cfg.extend_prob and (cfg.max_waypoints is None or len(g) < cfg.max_waypoints):
                 g = extend(g, self.start_norm, self.rng)
-            children.append((np.array(g, dtype=np.float64), int(self._parent_index[p])))
+            start = self._parent_starts[p]
+            if varied and draws[i, 3] < cfg.start_mutation_prob:
+                start = NEW_START
+            children.append((np.array(g, dtype=np.float64), int(self._parent_index[p]), start))
         return children
 
     def tell(self, candidates: list[Candidate], descriptors: list[np.ndarray | None]) -> list[Evaluation]:
@@ -212,6 +228,7 @@ class NovEB(ArchiveExplorer):
                 self.archive.add(new_codes[j], {"index": c.index, "generation": c.generation})
                 evaluations[fresh[int(j)]].archived = True
             pool_genomes = self._parents + [pending[i].genome for i in fresh] + [clones[i].genome for i in reused]
+            pool_starts = self._parent_starts + [pending[i].start for i in fresh] + [clones[i].start for i in reused]
             pool_index = np.concatenate(
                 [self._parent_index, [pending[i].index for i in fresh], [clones[i].source for i in reused]]
             )
@@ -221,6 +238,7 @@ class NovEB(ArchiveExplorer):
                 if k >= n_par + len(fresh):
                     clones[reused[int(k) - n_par - len(fresh)]].survived = True
             self._parents = [pool_genomes[i] for i in keep]
+            self._parent_starts = [pool_starts[i] for i in keep]
             self._parent_codes = pool_codes[keep]
             self._parent_index = pool_index[keep].astype(np.int64)
             self._parent_novelty = nov[keep]
@@ -251,6 +269,7 @@ class NovEB(ArchiveExplorer):
             "parent_codes": self._parent_codes.copy(),
             "parent_index": self._parent_index.copy(),
             "parent_novelty": self._parent_novelty.copy(),
+            "parent_starts": [None if st is None else st.to_dict() for st in self._parent_starts],
         }
 
     def _load_extra_state(self, state: dict[str, Any]) -> None:
@@ -259,3 +278,5 @@ class NovEB(ArchiveExplorer):
         self._parent_codes = np.array(state["parent_codes"], dtype=np.uint64)
         self._parent_index = np.array(state["parent_index"], dtype=np.int64)
         self._parent_novelty = np.array(state["parent_novelty"], dtype=np.float64)
+        # stored before starts varied: every parent ran from the fixed scene
+        self._parent_starts = [Start.from_dict(st) for st in state.get("parent_starts", [None] * len(self._parents))]

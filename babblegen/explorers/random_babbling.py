@@ -15,13 +15,16 @@ import numpy as np
 
 from babblegen.explorers.base import (
     KIND_JOINTS,
+    KIND_WAYPOINTS,
+    NEW_START,
     ArchiveExplorer,
     Candidate,
     Evaluation,
 )
 from babblegen.novelty import ARCHIVE_POLICIES, novelty
+from babblegen.starts import StartSampler
 
-__all__ = ["RandomBabbling", "RandomBabblingConfig"]
+__all__ = ["RandomBabbling", "RandomBabblingConfig", "RandomWaypoints", "RandomWaypointsConfig"]
 
 
 @dataclass
@@ -63,8 +66,9 @@ class RandomBabbling(ArchiveExplorer):
         *,
         joint_limits: np.ndarray,
         start_norm: np.ndarray | None = None,
+        starts: StartSampler | None = None,
     ) -> None:
-        super().__init__(config, rng_seed)
+        super().__init__(config, rng_seed, starts)
         limits = np.asarray(joint_limits, dtype=np.float64)
         if limits.ndim != 2 or limits.shape[1] != 2 or not np.all(np.isfinite(limits)):
             raise ValueError(f"joint_limits must be a finite (n_joints, 2) array, got shape {limits.shape}")
@@ -72,10 +76,15 @@ class RandomBabbling(ArchiveExplorer):
             raise ValueError("joint_limits must have lower <= upper for every joint")
         self.joint_limits = limits
 
-    def _propose(self) -> list[tuple[str, np.ndarray, int | None]]:
+    def _propose(self) -> list[tuple[str, np.ndarray, int | None, str | None]]:
         lo, hi = self.joint_limits[:, 0], self.joint_limits[:, 1]
         targets = lo + (hi - lo) * self.rng.random((self.config.population, lo.shape[0]))
-        return [(KIND_JOINTS, t, None) for t in targets]
+        return [(KIND_JOINTS, t, None, self._new_start) for t in targets]
+
+    @property
+    def _new_start(self) -> str | None:
+        """Every attempt from a start of its own (drawn for its attempt index, as NovEB draws them), or None."""
+        return NEW_START if self.starts is not None else None
 
     def tell(self, candidates: list[Candidate], descriptors: list[np.ndarray | None]) -> list[Evaluation]:
         codes = self._check_tell(candidates, descriptors)
@@ -99,3 +108,28 @@ class RandomBabbling(ArchiveExplorer):
 
     def _load_extra_state(self, state: dict[str, Any]) -> None:
         self.joint_limits = np.asarray(state["joint_limits"], dtype=np.float64).copy()
+
+
+@dataclass
+class RandomWaypointsConfig(RandomBabblingConfig):
+    """Random babbling's options, and the most waypoints a genome is drawn with."""
+
+    max_waypoints: int = 4
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if int(self.max_waypoints) != self.max_waypoints or self.max_waypoints < 1:
+            raise ValueError(f"max_waypoints must be an integer >= 1, got {self.max_waypoints}")
+
+
+class RandomWaypoints(RandomBabbling):
+    """A control in NovEB's genome space: random waypoint lists (1 to ``max_waypoints`` points, each uniform in the
+    normalised workspace box [0, 1]^3, the range of NovEB's first generation), with no novelty search and no
+    selection. Against it, NovEB shows what its novelty search adds to aiming at the table."""
+
+    name = "random_waypoints"
+    config_class = RandomWaypointsConfig
+
+    def _propose(self) -> list[tuple[str, np.ndarray, int | None, str | None]]:
+        counts = self.rng.integers(1, self.config.max_waypoints + 1, size=self.config.population)
+        return [(KIND_WAYPOINTS, self.rng.random((int(n), 3)), None, self._new_start) for n in counts]

@@ -13,6 +13,8 @@ REASONS = {
     "no_ik": "inverse kinematics found no joint configuration for a target",
     "target_in_collision": "every configuration reaching a target collides with the table, floor or robot",
     "no_plan": "the planner found no collision-free path in its time limit",
+    "start_not_at_rest": "the drawn start's objects were still moving when its settling time ran out",
+    "start_off_table": "an object of the drawn start left the table while it settled",
 }
 
 
@@ -23,6 +25,7 @@ class Command:
 
     kind: str  # "ee_waypoints" or "joint_target"
     values: np.ndarray  # (n, 3) or (dof,)
+    start: np.ndarray | None = None  # (n_objects, 3) x, y, yaw of a varied start (babblegen.starts); None: the task's
 
 
 @dataclass
@@ -60,7 +63,8 @@ class Rollout:
     planner: str = ""  # how the path was found: "direct", "rrtconnect" (for any segment)
     frames: Frames | None = None
     touched: np.ndarray | None = None  # (n_objects,) bool: the arm touched the object at some point
-    displacement: np.ndarray | None = None  # (n_objects,) metres between start and final position
+    displacement: np.ndarray | None = None  # (n_objects,) metres between the episode's start and final position
+    start_poses: np.ndarray | None = None  # (n_objects, 7) the objects at the first frame (a varied start, settled)
     final_poses: np.ndarray | None = None  # (n_objects, 7)
     timings: dict[str, float] = field(default_factory=dict)  # seconds: ik, plan, sim, render, total
     prepared: dict[str, Any] = field(default_factory=dict)  # sink name -> what it needs, made where the rollout ran

@@ -8,6 +8,7 @@ from typing import Any
 MAX_CAMERA_SIDE = 2048  # pixels: larger frames exhaust the CPU renderer and the video encoder
 MOUNTS = ("head", "fixed", "wrist")
 MODALITIES = ("depth", "segmentation")
+START_MODES = ("fixed", "varied")  # the paper's scene for every episode, or a settled layout drawn per start
 
 
 @dataclass(frozen=True)
@@ -82,6 +83,10 @@ class WorldSettings:
     ik_tolerance: float = 0.005  # metres
     ik_seeds: int = 8
     collision_margin: float = 0.01  # metres kept from table, floor and robot body
+    # where episodes start: "fixed" (the paper's scene, every time) or "varied" (layouts the task declares, drawn
+    # per start and settled by physics; babblegen.starts)
+    starts: str = "fixed"
+    start_settle_seconds: float = 2.0  # a varied start settles until at rest, at most this long (else not used)
     # what is recorded: the head camera (the behaviour camera, always) and any others, each with its modalities
     cameras: tuple[CameraView, ...] = field(default_factory=lambda: default_cameras())
 
@@ -93,6 +98,10 @@ class WorldSettings:
             raise ValueError("the cameras must include 'head', the behaviour camera the search looks through")
         if len(set(names)) != len(names):
             raise ValueError(f"camera names must differ, got {names}")
+        if self.starts not in START_MODES:
+            raise ValueError(f"unknown starts {self.starts!r}; choose one of: {', '.join(START_MODES)}")
+        if not self.start_settle_seconds > 0:
+            raise ValueError(f"start_settle_seconds must be > 0, got {self.start_settle_seconds}")
         if self.control_freq % self.fps or self.sim_freq % self.control_freq:
             raise ValueError("need fps | control_freq | sim_freq (e.g. 10, 20, 100)")
         if min(self.camera_width, self.camera_height) < 16:

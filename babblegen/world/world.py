@@ -18,6 +18,7 @@ import sapien
 import torch
 
 from babblegen.scene import TaskSpec
+from babblegen.starts import layout_poses
 from babblegen.world.cameras import CameraRig
 from babblegen.world.collision import Box, SphereCollisionModel
 from babblegen.world.kinematics import ArmKinematics, UrdfModel
@@ -283,8 +284,9 @@ class World:
         t = np.arange(0.0, t_knots[-1] + dt, dt)
         return np.stack([np.interp(t, t_knots, path[:, j]) for j in range(path.shape[1])], axis=1)
 
-    def reset(self) -> None:
-        """Robot at home, every object back at its start pose, at rest, with no physical memory of earlier
+    def reset(self, start: np.ndarray | None = None) -> None:
+        """Robot at home, every object at its start pose (the task's, or the varied start ``start``: (n_objects,
+        3) x, y, yaw, resting on the table, not settled yet: `settle_start`), with no physical memory of earlier
         rollouts: the scene is rebuilt.
 
         Setting poses and velocities is not enough. PhysX keeps state that no API shows (contact pair order,
@@ -296,6 +298,33 @@ class World:
         """
         self.env.reset(options={"reconfigure": True})
         self._bind_scene()
+        if start is not None:
+            for entity, pose in zip(self._object_entities, layout_poses(self.task, start), strict=True):
+                entity.set_pose(sapien.Pose(pose[:3], pose[3:]))
+
+    def settle_start(self) -> str:
+        """Let a varied start come to rest with the arm held at home, before its first frame: at least 0.1 s, then
+        until every object is at rest, at most ``start_settle_seconds``. Returns "" when it did and every object
+        is still on the table, else the reason the start is not used (a key of ``REASONS``)."""
+        s = self.settings
+        px, substeps = self.sim.scene.px, s.sim_freq // s.control_freq
+        least = max(1, s.control_freq // 10)
+        self._drive(self.home)
+        for step in range(max(int(round(s.start_settle_seconds * s.control_freq)), least)):
+            for substep in range(substeps):
+                if substep and self._drive_joints is None:
+                    self.agent.before_simulation_step()
+                px.step()
+            if step + 1 >= least and self._at_rest():
+                break
+        else:
+            return "start_not_at_rest"
+        t = self.task.table
+        poses = self._object_poses()
+        inside = np.all(np.abs(poses[:, :2] - np.asarray(t.center[:2])) <= np.asarray(t.half_extents[:2]), axis=1)
+        if not np.all(inside & (poses[:, 2] > self.task.table_top)):
+            return "start_off_table"
+        return ""
 
     def rollout(self, command: Command, defer_render: bool = False) -> Rollout:
         """Plan and, if feasible, execute and record one command. The scene is reset first.
@@ -324,8 +353,13 @@ class World:
         extra_settle = max(int(round((s.max_settle_seconds - s.settle_seconds) * s.fps)), 0) * per_frame
 
         t_reset = time.perf_counter()
-        self.reset()
+        self.reset(command.start)
+        not_used = self.settle_start() if command.start is not None else ""
         timings["reset"] = time.perf_counter() - t_reset
+        if not_used:
+            timings["total"] = time.perf_counter() - t_start
+            return Rollout(command, False, not_used, ee_targets=targets, timings=timings)
+        start = self._object_poses()  # displacements are measured from the episode's own start
         substeps = s.sim_freq // s.control_freq
         rec = {k: [] for k in ("state", "action", "ee_pos", "object_poses", "contacts", "images", "time")}
         t_sim = t_render = 0.0
@@ -397,8 +431,9 @@ class World:
             planner=planner,
             frames=frames,
             touched=touched_any,
-            displacement=np.linalg.norm(final[:, :3] - self.start_poses[:, :3], axis=1),
+            displacement=np.linalg.norm(final[:, :3] - start[:, :3], axis=1),
             final_poses=final,
+            start_poses=start,
             timings=timings,
         )
 

@@ -1,0 +1,107 @@
+"""Start states: where the objects stand when an episode begins.
+
+``fixed`` is the paper's scene: every episode starts from the task's object poses. ``varied`` draws a layout (each
+object's x, y and yaw, within the regions its task declares, no two footprints closer than the task's gap) and the
+world settles it by physics before the first frame (`World.reset`). A layout is drawn for an attempt index from the
+run seed alone (`StartSampler.draw`), so it depends on neither the worker nor the order rollouts finish in, and the
+explorers that draw for the same index draw the same layout; NovEB's children inherit their parent's layout unless
+a start mutation draws a new one (`babblegen.explorers.noveb`). Importable without the simulator.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from babblegen.scene import TaskSpec
+from babblegen.world.settings import START_MODES
+
+__all__ = ["START_MODES", "Start", "StartSampler", "layout_poses", "yaw_quaternion"]
+
+_STREAM = 0x5747A  # the start draws' own random stream, apart from the explorer's and the rollouts'
+_MAX_TRIES = 10_000
+
+
+@dataclass
+class Start:
+    """A drawn start: ``layout`` is (n_objects, 3) x, y (metres) and yaw (radians); ``drawn_at`` the attempt index
+    it was drawn for (`StartSampler.draw` rebuilds it from that and the run seed)."""
+
+    layout: np.ndarray
+    drawn_at: int
+
+    def key(self) -> bytes:
+        """What identifies the start in a genome's identity: the exact layout."""
+        return np.ascontiguousarray(self.layout, dtype=np.float64).tobytes()
+
+    def to_dict(self) -> dict:
+        return {"layout": np.asarray(self.layout).tolist(), "drawn_at": int(self.drawn_at)}
+
+    @classmethod
+    def from_dict(cls, data: dict | None) -> Start | None:
+        if data is None:
+            return None
+        return cls(np.asarray(data["layout"], dtype=np.float64).reshape(-1, 3), int(data["drawn_at"]))
+
+
+def yaw_quaternion(yaw: np.ndarray) -> np.ndarray:
+    """(..., 4) quaternions (w, x, y, z) of rotations by ``yaw`` about the vertical axis."""
+    half = 0.5 * np.asarray(yaw, dtype=np.float64)
+    zeros = np.zeros_like(half)
+    return np.stack([np.cos(half), zeros, zeros, np.sin(half)], axis=-1)
+
+
+def layout_poses(task: TaskSpec, layout: np.ndarray) -> np.ndarray:
+    """(n_objects, 7) poses (x, y, z, qw, qx, qy, qz) of a layout: each object resting on the table top."""
+    layout = np.asarray(layout, dtype=np.float64)
+    z = np.array([task.table_top + o.half_height for o in task.objects])
+    return np.concatenate([layout[:, :2], z[:, None], yaw_quaternion(layout[:, 2])], axis=1)
+
+
+class StartSampler:
+    """Draws a task's varied starts for a run seed: ``draw(attempt)`` is a function of (seed, attempt) alone."""
+
+    def __init__(self, task: TaskSpec, seed: int):
+        if task.starts is None:
+            raise ValueError(f"task {task.name!r} declares no start distribution (TaskSpec.starts)")
+        self.task, self.seed = task, int(seed)
+        self.radius = np.array([o.footprint_radius for o in task.objects])
+        t = task.table
+        self._table = (t.center[0] - t.half_extents[0], t.center[0] + t.half_extents[0],
+                       t.center[1] - t.half_extents[1], t.center[1] + t.half_extents[1])  # fmt: skip
+
+    def draw(self, attempt: int) -> Start:
+        rng = np.random.default_rng([self.seed, _STREAM, int(attempt)])
+        return Start(self.layout(rng), int(attempt))
+
+    def layout(self, rng: np.random.Generator) -> np.ndarray:
+        """Objects placed in turn, each redrawn until it keeps its distances (`StartDistribution`)."""
+        dist = self.task.starts
+        placed = np.zeros((len(self.radius), 3))
+        for i, region in enumerate(dist.regions):
+            for _ in range(_MAX_TRIES):
+                x, y, yaw = rng.uniform(*region.x), rng.uniform(*region.y), rng.uniform(*region.yaw)
+                if self._fits(i, x, y, placed[:i], dist.gap):
+                    placed[i] = (x, y, yaw)
+                    break
+            else:
+                raise ValueError(
+                    f"task {self.task.name!r}: no place for {self.task.objects[i].name!r} in its start region "
+                    f"after {_MAX_TRIES} draws; widen the region or lower the gap"
+                )
+        return placed
+
+    def _fits(self, i: int, x: float, y: float, placed: np.ndarray, gap: float) -> bool:
+        r = self.radius[i]
+        x0, x1, y0, y1 = self._table
+        if not (x0 + r + gap <= x <= x1 - r - gap and y0 + r + gap <= y <= y1 - r - gap):
+            return False
+        if len(placed) and np.any(np.hypot(placed[:, 0] - x, placed[:, 1] - y) < self.radius[: len(placed)] + r + gap):
+            return False
+        for box in self.task.extra_obstacles:  # axis-aligned footprint of a static obstacle
+            dx = max(abs(x - box.center[0]) - box.half_extents[0], 0.0)
+            dy = max(abs(y - box.center[1]) - box.half_extents[1], 0.0)
+            if np.hypot(dx, dy) < r + gap:
+                return False
+        return True
