@@ -121,7 +121,7 @@ def _total_episodes(root: Path) -> int:
 
 
 def cmd_report(args: argparse.Namespace) -> int:
-    from babblegen.exporters.report import FIGURES, write_report
+    from babblegen.exporters.report import write_report
 
     root = check_dataset(args.dataset)
     other = check_dataset(args.compare) if args.compare is not None else None
@@ -136,5 +136,6 @@ def cmd_report(args: argparse.Namespace) -> int:
             else ""
         )
     )
-    print(f"report written to {out}: summary.md, summary.json, {', '.join(FIGURES.values())}")
+    figures = ", ".join(Path(p).name for p in result["figures"].values())
+    print(f"report written to {out}: summary.md, summary.json, {figures}")
     return 0

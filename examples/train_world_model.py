@@ -1,20 +1,28 @@
-"""Train a small world model on babbling data: from the commanded joint trajectory, predict where every object
-ends up (its horizontal displacement) and which objects move. Then ask the NovEB paper's open question: does
-data from NovEB train a better model than the same number of random-babbling episodes?
+"""Train a small world model on babbling data and ask which data trains it best: from the commanded joint
+trajectory and the scene it starts from, predict which objects move and where each one ends up.
 
-    python examples/train_world_model.py --noveb DIR_A --random DIR_B [--epochs 300] [--seed 0] [--repeats 3]
+    python examples/train_world_model.py \\
+        --train noveb_fixed=d/nf1,d/nf2,d/nf3 --train noveb_varied=d/nv1,d/nv2,d/nv3 \\
+        --train random_varied=d/rv1,d/rv2,d/rv3 \\
+        --test varied=d/test_nv,d/test_rv --test fixed=d/test_nf [--start masks|poses|none] [--json out.json]
+    python examples/train_world_model.py --train noveb=d/nv1 --test varied=d/test_nv --epochs 50 --start poses
 
-Per episode, the input is the `action` column (commanded joint positions) resampled to --steps time steps
-(optionally with the tool path `observation.ee_pos`, and with --before the head camera's masks or depth map of
-the first frame, 16 x 16); the targets come from `observation.environment_state`:
-last frame minus first frame, (dx, dy) per object, and "moved" = displaced more than --moved-threshold metres.
+Per episode the input is the `action` column (commanded joints) resampled to --steps time steps, plus the start:
+with --start masks (default), the head camera's instance masks of the first frame as one binary occupancy map
+per object (mask == the object's id, from the feature's `info.ids`), area-averaged to --grid x --grid; with
+--start poses, each object's first-frame x, y and yaw (as cos and sin, so it does not wrap) from
+`observation.environment_state`, an upper bound; with --start none, the trajectory alone. Targets, from
+`observation.environment_state`: each object's (dx, dy), last frame minus first, and whether it moves (its 3-D
+displacement, as the sidecar's, exceeds --moved-threshold).
 
-Each repeat holds out about the same number of episodes from both datasets as one common test set, trains one
-model on N NovEB episodes and one on N random episodes (N equal, the rest of each dataset or --n), and
-evaluates both on that test set, next to the trivial baseline "nothing moves". The split is by genome (read
-from the sidecar, DIR/babblegen/attempts.jsonl): every episode of one commanded movement lands on the same side,
-so a model is never tested on a movement it was trained on. Deterministic for a given --seed: CPU, one
-thread, seeded splits and initialisation.
+Each --train source is a name and one dataset per repeat: repeat r trains on the r-th dataset of every source (a
+source given one dataset uses it in every repeat), on --n episodes of each (default: the smallest training
+dataset's count, so every source trains on as many), drawn with the seed --seed + r. Each --test set is the
+union of its datasets and is never trained on: training episodes whose genome (commanded movement, from the
+sidecar DIR/babblegen/attempts.jsonl) appears in a test set are dropped. Reported per test set, mean ± std over
+repeats: F1 of "moves" (per object and episode) and the median error of the predicted (dx, dy), in cm, over the
+objects that truly moved, next to the trivial baseline "nothing moves". Deterministic for a given --seed: CPU,
+one thread, seeded draws and initialisation.
 """
 
 from __future__ import annotations
@@ -30,20 +38,34 @@ os.environ.setdefault("HF_HUB_OFFLINE", "1")  # local datasets: never ask the Hu
 import datasets
 import numpy as np
 import torch
-from lerobot.datasets.lerobot_dataset import LeRobotDataset
 from torch import nn
+
+MASKS = "observation.images.head_segmentation"
+ENV = "observation.environment_state"
+BASELINE = "nothing moves"
+DISP_SCALE = 10.0  # displacements are learned in decimetres, so both losses have similar magnitudes
+CLIP = 5.0  # normalised inputs are clipped to +-CLIP standard deviations of the training data
 
 
 @dataclass
 class Episodes:
-    """One dataset as fixed-size arrays, one row per episode."""
+    """One or more datasets as fixed-size arrays, one row per episode."""
 
-    source: str
-    x: np.ndarray  # (E, steps * channels [+ pixels]) commanded joints (and tool path) resampled in time, flattened
-    disp: np.ndarray  # (E, n_objects, 2) final minus first object position, metres
+    x: np.ndarray  # (E, inputs): trajectory, then the start, flattened
+    disp: np.ndarray  # (E, n_objects, 2) last minus first object position, metres
     moved: np.ndarray  # (E, n_objects) bool
-    object_names: list[str]
-    genome: np.ndarray  # (E,) int: episodes with equal values executed the same genome
+    genomes: np.ndarray  # (E,) str: the explorer's kind and genome; equal for the same commanded movement
+    objects: list[str]
+
+    def take(self, idx: np.ndarray) -> Episodes:
+        return Episodes(self.x[idx], self.disp[idx], self.moved[idx], self.genomes[idx], self.objects)
+
+    @staticmethod
+    def union(parts: list[Episodes]) -> Episodes:
+        if any(p.objects != parts[0].objects for p in parts):
+            raise SystemExit("the datasets have different objects (different scenes?)")
+        cat = [np.concatenate([getattr(p, key) for p in parts]) for key in ("x", "disp", "moved", "genomes")]
+        return Episodes(*cat, parts[0].objects)
 
 
 def resample(seq: np.ndarray, steps: int) -> np.ndarray:
@@ -53,54 +75,73 @@ def resample(seq: np.ndarray, steps: int) -> np.ndarray:
     return np.stack([np.interp(t_new, t_old, seq[:, c]) for c in range(seq.shape[1])], axis=1)
 
 
-def load_episodes(
-    root: Path, source: str, steps: int, with_ee: bool, threshold: float, before: str | None = None
-) -> Episodes:
-    """Read a dataset's per-frame columns and turn each episode into one example; with ``before``
-    ("masks" or "depth"), the head camera's instance masks or depth map of the episode's first frame, averaged
-    down to 16 x 16, join the input."""
+def yaw(q: np.ndarray) -> np.ndarray:
+    """Rotation about the world's z axis of (..., 4) quaternions (w, x, y, z), radians."""
+    w, x, y, z = np.moveaxis(q, -1, 0)
+    return np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+
+
+def occupancy(mask: np.ndarray, ids: list[int], grid: int) -> np.ndarray:
+    """(len(ids), grid, grid): the fraction of each cell that each id covers in an (H, W) instance mask."""
+    maps = torch.from_numpy(np.stack([mask == i for i in ids]).astype(np.float32))
+    return nn.functional.adaptive_avg_pool2d(maps, grid).numpy()
+
+
+def mask_ids(features: dict, objects: list[str], root: Path) -> list[int]:
+    """Each object's id in the instance masks, from the mask feature's ``info.ids`` (id -> name)."""
+    if MASKS not in features:
+        raise SystemExit(f"{root} has no {MASKS} (recorded with --no-segmentation); try --start poses")
+    by_name = {name: int(i) for i, name in features[MASKS].get("info", {}).get("ids", {}).items()}
+    missing = [o for o in objects if o not in by_name]
+    if missing:
+        raise SystemExit(f"{root}: {MASKS} info.ids names no id for {missing} (ids: {by_name})")
+    return [by_name[o] for o in objects]
+
+
+def load_episodes(root: Path, steps: int, start: str, grid: int, threshold: float) -> Episodes:
+    """Read a dataset and turn each episode into one example (see the module docstring)."""
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
     repo_id = json.loads((root / "babblegen" / "run.json").read_text())["repo_id"]
     ds = LeRobotDataset(repo_id, root=root)
     objects = list(ds.meta.features["observation.contacts"]["names"])
-    columns = ["episode_index", "action", "observation.environment_state", *(["observation.ee_pos"] if with_ee else [])]
-    table = ds.hf_dataset.select_columns(columns).with_format("numpy")[:]
+    table = ds.hf_dataset.select_columns(["episode_index", "action", ENV]).with_format("numpy")[:]
     episode = np.asarray(table["episode_index"]).reshape(-1)
     action = np.asarray(table["action"], dtype=np.float64)
-    env = np.asarray(table["observation.environment_state"], dtype=np.float64).reshape(len(episode), -1, 7)
-    inputs = np.concatenate([action, np.asarray(table["observation.ee_pos"])], axis=1) if with_ee else action
-    xs, disps = [], []
-    view = {"masks": "observation.images.head_segmentation", "depth": "observation.images.head_depth"}.get(before)
-    if view is not None and view not in ds.meta.features:
-        raise SystemExit(f"{root} has no {view} (recorded with --no-{'segmentation' if before == 'masks' else before})")
-    for e in np.unique(episode):
-        rows = np.flatnonzero(episode == e)  # frames in order within an episode
-        x = resample(inputs[rows], steps).ravel()
-        if view is not None:
-            image = ds[int(rows[0])][view][0][None, None].float()  # (1, 1, H, W): ids / 255, or millimetres
-            x = np.concatenate([x, torch.nn.functional.adaptive_avg_pool2d(image, 16).numpy().ravel()])
-        xs.append(x)
-        disps.append(env[rows[-1], :, :2] - env[rows[0], :, :2])
-    if not xs:
+    env = np.asarray(table[ENV], dtype=np.float64).reshape(len(episode), len(objects), 7)
+    episodes = np.unique(episode)
+    if not len(episodes):
         raise SystemExit(f"{root} holds no episodes")
-    disp = np.stack(disps)
-    moved = np.linalg.norm(disp, axis=2) > threshold
-    return Episodes(source, np.stack(xs), disp, moved, objects, genome_groups(root, np.unique(episode)))
+    rows = [np.flatnonzero(episode == e) for e in episodes]  # frames in order within an episode
+    first, last = np.array([r[0] for r in rows]), np.array([r[-1] for r in rows])
+    x = np.stack([resample(action[r], steps).ravel() for r in rows])
+    if start == "masks":
+        ids = mask_ids(ds.meta.features, objects, root)
+        frames = ds.hf_dataset.select(first.tolist()).select_columns([MASKS]).with_format("numpy")[MASKS]
+        maps = [occupancy(np.asarray(f).reshape(f.shape[:2]), ids, grid).ravel() for f in frames]
+        x = np.concatenate([x, np.stack(maps)], axis=1)
+    elif start == "poses":
+        pose = env[first]
+        angle = yaw(pose[..., 3:7])
+        start_xy_yaw = np.stack([pose[..., 0], pose[..., 1], np.cos(angle), np.sin(angle)], axis=2)
+        x = np.concatenate([x, start_xy_yaw.reshape(len(x), -1)], axis=1)
+    moved = np.linalg.norm(env[last, :, :3] - env[first, :, :3], axis=2) > threshold
+    return Episodes(x, env[last, :, :2] - env[first, :, :2], moved, genome_keys(root, episodes), objects)
 
 
-def genome_groups(root: Path, episodes: np.ndarray) -> np.ndarray:
-    """For each episode index, a group id shared by all episodes that executed the same genome (sidecar)."""
+def genome_keys(root: Path, episodes: np.ndarray) -> np.ndarray:
+    """For each episode index, its attempt's kind and genome as one string (from the sidecar)."""
     by_episode: dict[int, str] = {}
     with open(root / "babblegen" / "attempts.jsonl") as f:
         for line in f:
             row = json.loads(line)
             if row.get("episode_index") is not None:
                 by_episode[int(row["episode_index"])] = f"{row.get('kind')}:{json.dumps(row['genome'])}"
-    ids: dict[str, int] = {}
-    return np.array([ids.setdefault(by_episode[int(e)], len(ids)) for e in episodes])
+    return np.array([by_episode[int(e)] for e in episodes])
 
 
 class WorldModel(nn.Module):
-    """MLP: flattened trajectory -> per-object displacement (dx, dy) and a "moves" logit."""
+    """MLP: flattened trajectory (and start) -> per-object displacement (dx, dy) and a "moves" logit."""
 
     def __init__(self, n_in: int, n_objects: int, hidden: int = 128):
         super().__init__()
@@ -114,21 +155,24 @@ class WorldModel(nn.Module):
         return out[..., :2], out[..., 2]
 
 
-_KEYS = ("x", "disp", "moved")
-DISP_SCALE = 10.0  # displacements are learned in decimetres, so both losses have similar magnitudes
+def normalise(x: np.ndarray, mean: np.ndarray, std: np.ndarray) -> torch.Tensor:
+    """Inputs standardised with the training data's statistics and clipped, so that inputs that barely varied in
+    training (a map cell an object rarely covered) cannot swamp the model on other data."""
+    return torch.tensor(np.clip((x - mean) / std, -CLIP, CLIP), dtype=torch.float32)
 
 
 def train(
-    x: np.ndarray, disp: np.ndarray, moved: np.ndarray, epochs: int, seed: int, hidden: int, batch: int = 32
+    data: Episodes, epochs: int, seed: int, hidden: int, batch: int = 32
 ) -> tuple[WorldModel, np.ndarray, np.ndarray]:
     """Fit a model; returns it with the input normalisation (mean, std) taken from its own training data."""
     torch.manual_seed(seed)
     rng = np.random.default_rng(seed)
-    mean, std = x.mean(axis=0), x.std(axis=0) + 1e-3
-    xt = torch.tensor((x - mean) / std, dtype=torch.float32)
-    dt = torch.tensor(disp * DISP_SCALE, dtype=torch.float32)
-    mt = torch.tensor(moved, dtype=torch.float32)
-    model = WorldModel(xt[0].numel(), disp.shape[1], hidden)
+    mean, std = data.x.mean(axis=0), data.x.std(axis=0)
+    std[std < 1e-6] = 1.0  # an input constant in training (every start the same) is not blown up at test time
+    xt = normalise(data.x, mean, std)
+    dt = torch.tensor(data.disp * DISP_SCALE, dtype=torch.float32)
+    mt = torch.tensor(data.moved, dtype=torch.float32)
+    model = WorldModel(xt.shape[1], dt.shape[1], hidden)
     opt = torch.optim.AdamW(model.parameters(), lr=1e-3, weight_decay=1e-3)
     bce = nn.BCEWithLogitsLoss()
     for _ in range(epochs):
@@ -144,143 +188,165 @@ def train(
 
 
 def predict(model: WorldModel, mean: np.ndarray, std: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Predicted (dx, dy) in metres and "moves" for each row of ``x``."""
     with torch.no_grad():
-        d, logit = model(torch.tensor((x - mean) / std, dtype=torch.float32))
+        d, logit = model(normalise(x, mean, std))
     return d.numpy() / DISP_SCALE, logit.numpy() > 0
 
 
-def scores(
-    pred_disp: np.ndarray, pred_moved: np.ndarray, disp: np.ndarray, moved: np.ndarray, source: np.ndarray
-) -> dict[str, float]:
-    """MSE of the displacement (cm^2 per object and axis) on the whole test set, on its NovEB and random parts
-    and on the episodes where something moved; accuracy and F1 of "which objects move" (F1 of the class "moves":
-    0 for a model that never says so)."""
-    err = ((pred_disp - disp) * 100) ** 2
-
-    def mse(mask: np.ndarray) -> float:
-        return float(err[mask].mean()) if mask.any() else float("nan")
-
-    tp = (pred_moved & moved).sum()
+def scores(pred_disp: np.ndarray, pred_moved: np.ndarray, truth: Episodes) -> dict[str, float]:
+    """F1 of the class "moves" over object-episodes (nan when neither truth nor prediction has one) and the
+    median Euclidean error of (dx, dy), cm, over the object-episodes that truly moved (nan if none did)."""
+    tp = float((pred_moved & truth.moved).sum())
+    denominator = float(pred_moved.sum() + truth.moved.sum())
+    err = np.linalg.norm(pred_disp - truth.disp, axis=-1)[truth.moved] * 100
     return {
-        "mse": float(err.mean()),
-        "mse_noveb": mse(source == "noveb"),
-        "mse_random": mse(source == "random"),
-        "mse_moved": mse(moved.any(axis=1)),
-        "acc": float((pred_moved == moved).mean()),
-        "f1": float(2 * tp / max(pred_moved.sum() + moved.sum(), 1)),
+        "f1": 2 * tp / denominator if denominator else float("nan"),
+        "median_cm": float(np.median(err)) if err.size else float("nan"),
     }
 
 
-def split(groups: np.ndarray, n_test: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-    """(train, test) episode indices: whole genome groups, in random order, go to the test set until it holds
-    at least ``n_test`` episodes; no group is on both sides."""
-    test: list[int] = []
-    for g in rng.permutation(np.unique(groups)):
-        if len(test) >= n_test:
-            break
-        test.extend(np.flatnonzero(groups == g).tolist())
-    test_set = set(test)
-    train = [i for i in rng.permutation(len(groups)).tolist() if i not in test_set]
-    return np.asarray(train, dtype=int), np.asarray(test, dtype=int)
+def experiment(
+    sources: dict[str, list[Episodes]], tests: dict[str, Episodes], n: int, epochs: int, seed: int, hidden: int
+) -> dict[str, dict[str, dict[str, list[float]]]]:
+    """Per test set, per model (the baseline, then every source), each score's value in every repeat."""
+    repeats = max(len(v) for v in sources.values())
+    out = {t: {m: {"f1": [], "median_cm": []} for m in (BASELINE, *sources)} for t in tests}
+    for r in range(repeats):
+        for test, truth in tests.items():
+            for key, value in scores(np.zeros_like(truth.disp), np.zeros_like(truth.moved), truth).items():
+                out[test][BASELINE][key].append(value)
+        for name, parts in sources.items():
+            data = parts[r % len(parts)]
+            idx = np.sort(np.random.default_rng(seed + r).permutation(len(data.x))[:n])
+            model, mean, std = train(data.take(idx), epochs, seed + r, hidden)
+            for test, truth in tests.items():
+                for key, value in scores(*predict(model, mean, std, truth.x), truth).items():
+                    out[test][name][key].append(value)
+    return out
+
+
+def cell(values: list[float], digits: int) -> str:
+    """mean ± std of the values that are numbers; "n/a" if none is."""
+    v = np.asarray(values, dtype=float)
+    v = v[~np.isnan(v)]
+    if not len(v):
+        return "n/a"
+    return f"{v.mean():.{digits}f} ± {v.std():.{digits}f}" if len(v) > 1 else f"{v.mean():.{digits}f}"
+
+
+def markdown(results: dict[str, dict[str, list[float]]]) -> list[str]:
+    """One test set's results as a markdown table."""
+    lines = [("model", "moves: F1", "median error, moved (cm)")]
+    lines += [(m, cell(s["f1"], 3), cell(s["median_cm"], 1)) for m, s in results.items()]
+    widths = [max(len(line[i]) for line in lines) for i in range(3)]
+    lines.insert(1, tuple("-" * w for w in widths))
+    return ["| " + " | ".join(c.ljust(w) for c, w in zip(line, widths, strict=True)) + " |" for line in lines]
+
+
+def named_dirs(text: str) -> tuple[str, list[Path]]:
+    """argparse type of NAME=DIR[,DIR...]."""
+    name, sep, dirs = text.partition("=")
+    paths = [Path(d) for d in dirs.split(",") if d]
+    if not sep or not name or not paths:
+        raise argparse.ArgumentTypeError(f"expected NAME=DIR[,DIR...], got {text!r}")
+    return name, paths
+
+
+def describe(root: Path, data: Episodes) -> str:
+    """One line on a loaded dataset: its explorer, starts, episodes and how often objects move."""
+    config = json.loads((root / "babblegen" / "run.json").read_text()).get("config", {})
+    starts = config.get("world", {}).get("starts", "fixed")
+    return (
+        f"{root}: {config.get('explorer', '?')}, {starts} starts, {len(data.x)} episodes of "
+        f"{len(np.unique(data.genomes))} genomes; something moves in {data.moved.any(axis=1).mean():.0%}, "
+        f"{data.moved.mean():.0%} of object-episodes"
+    )
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--noveb", type=Path, required=True, help="dataset made with --explorer noveb")
-    parser.add_argument("--random", type=Path, required=True, help="dataset made with --explorer random")
+    parser.add_argument("--train", type=named_dirs, action="append", required=True, metavar="NAME=DIR[,DIR...]")
+    parser.add_argument("--test", type=named_dirs, action="append", required=True, metavar="NAME=DIR[,DIR...]")
+    parser.add_argument("--start", choices=("masks", "poses", "none"), default="masks", help="[default: masks]")
+    parser.add_argument("--n", type=int, default=None, help="training episodes per source [default: smallest]")
     parser.add_argument("--epochs", type=int, default=300)
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--repeats", type=int, default=3, help="independent splits and initialisations (seed + r)")
-    parser.add_argument("--test-fraction", type=float, default=0.25, help="of the smaller dataset, per source")
-    parser.add_argument("--n", type=int, default=None, help="training episodes per source [default: all left]")
-    parser.add_argument("--steps", type=int, default=16, help="time steps the trajectory is resampled to")
-    parser.add_argument("--ee", action="store_true", help="also feed the tool path observation.ee_pos")
     parser.add_argument("--hidden", type=int, default=128)
+    parser.add_argument("--steps", type=int, default=16, help="time steps the trajectory is resampled to")
+    parser.add_argument("--grid", type=int, default=16, help="occupancy maps are pooled to GRID x GRID")
     parser.add_argument("--moved-threshold", type=float, default=0.01, help="metres: an object 'moves'")
-    parser.add_argument(
-        "--before",
-        choices=("masks", "depth"),
-        default=None,
-        help="also feed the head camera's masks or depth map of each episode's first frame (16 x 16)",
-    )
+    parser.add_argument("--json", type=Path, default=None, help="also write every number to this file")
     args = parser.parse_args()
+    for flag in ("train", "test"):
+        names = [name for name, _ in getattr(args, flag)]
+        if len(set(names)) < len(names):
+            parser.error(f"--{flag} names must differ: {names}")
+    repeats = max(len(dirs) for _, dirs in args.train)
+    if any(len(dirs) not in (1, repeats) for _, dirs in args.train):
+        parser.error(f"every --train source needs 1 or {repeats} datasets (one per repeat)")
+    test_dirs = {d.resolve() for _, dirs in args.test for d in dirs}
+    if clash := sorted(str(d) for _, dirs in args.train for d in dirs if d.resolve() in test_dirs):
+        parser.error(f"trained on and tested on: {clash}")
 
     datasets.disable_progress_bars()
     torch.set_num_threads(1)
     torch.use_deterministic_algorithms(True)
-    data = {
-        name: load_episodes(root, name, args.steps, args.ee, args.moved_threshold, args.before)
-        for name, root in (("noveb", args.noveb), ("random", args.random))
-    }
-    if data["noveb"].object_names != data["random"].object_names:
-        raise SystemExit("the two datasets have different objects (different scenes?)")
-    objects = data["noveb"].object_names
-    n_small = min(len(d.x) for d in data.values())
-    n_test = max(1, round(args.test_fraction * n_small))
-    n_train = n_small - n_test if args.n is None else min(args.n, n_small - n_test)
-    n_train -= max(len(d.genome) - len(np.unique(d.genome)) for d in data.values())  # room for group overshoot
-    if n_train < 2:
-        raise SystemExit(f"too few episodes: {n_small} in the smaller dataset")
+    cache: dict[Path, Episodes] = {}
 
-    for name, d in data.items():
-        frac = d.moved.any(axis=1).mean()
-        per_obj = ", ".join(f"{o} {m:.0%}" for o, m in zip(objects, d.moved.mean(axis=0), strict=True))
+    def load(root: Path) -> Episodes:
+        if root.resolve() not in cache:
+            cache[root.resolve()] = load_episodes(root, args.steps, args.start, args.grid, args.moved_threshold)
+            print(describe(root, cache[root.resolve()]))
+        return cache[root.resolve()]
+
+    print("test sets:")
+    tests = {name: Episodes.union([load(d) for d in dirs]) for name, dirs in args.test}
+    held_out = set(np.concatenate([t.genomes for t in tests.values()]).tolist())
+    print("training sources:")
+    sources: dict[str, list[Episodes]] = {}
+    for name, dirs in args.train:
+        sources[name] = []
+        for d in dirs:
+            data = load(d)
+            keep = np.flatnonzero([g not in held_out for g in data.genomes])
+            if len(keep) < len(data.x):
+                print(f"  {d}: {len(data.x) - len(keep)} episodes dropped, their genomes are in a test set")
+            sources[name].append(data.take(keep))
+    Episodes.union([*tests.values(), *(p for parts in sources.values() for p in parts)])  # same objects everywhere
+    smallest = min(len(p.x) for parts in sources.values() for p in parts)
+    n = smallest if args.n is None else min(args.n, smallest)
+    if n < 2:
+        raise SystemExit(f"too few training episodes: {smallest} in the smallest training dataset")
+    n_in = next(iter(tests.values())).x.shape[1]
+    print(
+        f"per model: {n} training episodes, {n_in} inputs (--start {args.start}), {args.epochs} epochs; "
+        f"{repeats} repeats"
+    )
+
+    results = experiment(sources, tests, n, args.epochs, args.seed, args.hidden)
+    for test, by_model in results.items():
+        truth = tests[test]
         print(
-            f"{name:7s} {len(d.x):4d} episodes of {len(np.unique(d.genome))} distinct genomes; something moves in "
-            f"{frac:.0%} ({per_obj})"
+            f"\ntest set {test}: {len(truth.x)} episodes, {int(truth.moved.sum())} of {truth.moved.size} "
+            f"object-episodes move"
         )
+        print("\n".join(markdown(by_model)))
     print(
-        f"per repeat: test = {n_test} + {n_test} held-out episodes (NovEB + random), train = {n_train} episodes "
-        f"per model; {data['noveb'].x.shape[1]} inputs, {args.epochs} epochs, {args.repeats} repeats"
+        f"\nF1 of 'moves' per object-episode (moves: displaced over {args.moved_threshold * 100:g} cm); median "
+        f"error of the predicted (dx, dy) over the object-episodes that moved; mean ± std over {repeats} repeats."
     )
-
-    labels = {"noveb": "trained on NovEB", "random": "trained on random", "both": "trained on both (half each)"}
-    rows: dict[str, list[dict[str, float]]] = {"nothing moves": [], **{label: [] for label in labels.values()}}
-    for r in range(args.repeats):
-        rng = np.random.default_rng(args.seed + r)
-        parts = {name: split(d.genome, n_test, rng) for name, d in data.items()}
-        test = {key: np.concatenate([getattr(d, key)[parts[n][1]] for n, d in data.items()]) for key in _KEYS}
-        test["source"] = np.repeat(list(data), [len(parts[n][1]) for n in data])
-        truth = (test["disp"], test["moved"], test["source"])
-        rows["nothing moves"].append(scores(np.zeros_like(test["disp"]), np.zeros_like(test["moved"]), *truth))
-        train_idx = {name: parts[name][0][:n_train] for name in data}
-        train_sets = {name: {key: getattr(data[name], key)[train_idx[name]] for key in _KEYS} for name in data}
-        # the same number of episodes again, half from each source
-        half = {name: train_idx[name][: (n_train + (name == "noveb")) // 2] for name in data}
-        train_sets["both"] = {key: np.concatenate([getattr(data[n], key)[half[n]] for n in data]) for key in _KEYS}
-        for name, label in labels.items():
-            t = train_sets[name]
-            model, mean, std = train(t["x"], t["disp"], t["moved"], args.epochs, args.seed + r, args.hidden)
-            rows[label].append(scores(*predict(model, mean, std, test["x"]), *truth))
-
-    def cell(values: list[float], digits: int) -> str:
-        v = np.asarray(values)[~np.isnan(values)]  # a part with no episodes (e.g. nothing moved) has no score
-        if not len(v):
-            return "n/a"
-        return f"{v.mean():.{digits}f} ± {v.std():.{digits}f}" if len(v) > 1 else f"{v.mean():.{digits}f}"
-
-    columns = {
-        "MSE cm² all": ("mse", 1),
-        "NovEB part": ("mse_noveb", 1),
-        "random part": ("mse_random", 1),
-        "moved episodes": ("mse_moved", 1),
-        "moves: acc.": ("acc", 3),
-        "moves: F1": ("f1", 3),
-    }
-    header = ("model", *columns)
-    lines = [header]
-    for label, rs in rows.items():
-        lines.append((label, *(cell([s[key] for s in rs], digits) for key, digits in columns.values())))
-    widths = [max(len(line[i]) for line in lines) for i in range(len(header))]
-    lines.insert(1, tuple("-" * w for w in widths))
-    print()
-    for line in lines:
-        print("| " + " | ".join(c.ljust(w) for c, w in zip(line, widths, strict=True)) + " |")
-    print(
-        "\nMSE: per object and axis of the final (dx, dy), on the common test set, its NovEB and random parts, and "
-        f"its episodes in which some object moved more than {args.moved_threshold * 100:.0f} cm; "
-        f"mean ± std over {args.repeats} repeats."
-    )
+    if args.json is not None:
+        report = {"args": {k: str(v) if isinstance(v, Path) else v for k, v in vars(args).items()}, "n_train": n}
+        report["args"]["train"] = {name: [str(d) for d in dirs] for name, dirs in args.train}
+        report["args"]["test"] = {name: [str(d) for d in dirs] for name, dirs in args.test}
+        report["tests"] = {
+            t: {"episodes": len(e.x), "moved": int(e.moved.sum()), "n": e.moved.size} for t, e in tests.items()
+        }
+        report["results"] = results
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps(report, indent=1) + "\n")
+        print(f"all numbers -> {args.json}")
 
 
 if __name__ == "__main__":

@@ -45,6 +45,7 @@ def card_text(info: dict[str, Any], run_info: dict[str, Any], counters: dict[str
   `observation.state[t+1]`); `observation.ee_pos` the tool point; `observation.environment_state` every object's
   pose (x, y, z, qw, qx, qy, qz); `observation.contacts` which objects the arm touched since the previous frame.
 {_camera_lines(info)}
+- **Starts:** {starts_text(cfg)}
 - **Task string:** "{run_info.get("episode_task", "")}".
 - **Every attempt**, infeasible ones included, with its genome, descriptor, novelty and contacts:
   `babblegen/attempts.jsonl`; the full configuration and software versions: `babblegen/run.json`.
@@ -67,6 +68,27 @@ Configuration:
         citation_bibtex=CITATION,
     )
     return str(card)
+
+
+def starts_text(cfg: dict[str, Any]) -> str:
+    """How the run's episodes started (``world.starts``; "fixed" for configurations made before starts varied)."""
+    if (cfg.get("world") or {}).get("starts", "fixed") != "varied":
+        return "fixed: every episode starts from the task's scene (the objects' poses in `babblegen/run.json`)."
+    text = (
+        "varied: each start is a layout (x, y, yaw per object) drawn from the task's per-object regions and "
+        "settled by physics before the first frame"
+    )
+    if cfg.get("explorer") == "noveb":
+        prob = (cfg.get("noveb") or {}).get("start_mutation_prob", 0.5)
+        text += (
+            f"; NovEB children keep their parent's start unless a start mutation (probability {prob}) draws a new one"
+        )
+    else:
+        text += "; every attempt draws its own"
+    return text + (
+        ". Each row of `babblegen/attempts.jsonl` records its start (`start`) and, when executed, the objects' "
+        "settled poses at the first frame (`start_poses`)."
+    )
 
 
 def _camera_lines(info: dict[str, Any]) -> str:

@@ -5,6 +5,8 @@ Every number comes from the sidecar table (DIR/babblegen/attempts.jsonl) and the
     fig3_final_object_positions.png   final object positions seen from above, coloured by object (Fig. 3)
     fig4_accumulated_contacts.png     accumulated contacts vs attempted movements, both runs (Fig. 4)
     fig5_contacts_per_object.png      accumulated contacts per object vs executed movements (Fig. 5)
+    start_object_positions.png        the objects' start positions (first frame) from above, drawn like Fig. 3;
+                                      only for datasets whose rows record them (``start_poses``)
     summary.md, summary.json          the numbers
 
 A contact is an executed movement in which the arm touched at least one object (the paper's count); per
@@ -31,6 +33,7 @@ FIGURES = {
     "fig4": "fig4_accumulated_contacts.png",
     "fig5": "fig5_contacts_per_object.png",
 }
+START_FIGURE = ("starts", "start_object_positions.png")  # written when the rows record their start poses
 TOOL_GREEN = "#22aa33"
 TABLE_BROWN = "#8c6647"
 
@@ -51,6 +54,15 @@ class Run:
     @property
     def explorer(self) -> str:
         return str(self.info.get("config", {}).get("explorer") or (self.rows[0]["explorer"] if self.rows else "?"))
+
+    @property
+    def starts(self) -> str:
+        """How the run drew its starts (run.json's ``world.starts``; "fixed" for runs made before starts varied)."""
+        return str((self.info.get("config", {}).get("world") or {}).get("starts") or "fixed")
+
+    @property
+    def has_start_poses(self) -> bool:
+        return any(r.get("start_poses") for r in self.executed)
 
     @property
     def label(self) -> str:
@@ -191,6 +203,7 @@ def summarize(run: Run) -> dict[str, Any]:
     return {
         "dataset": str(run.root),
         "explorer": run.explorer,
+        "starts": run.starts,
         "attempts": n,
         "executed": e,
         "generations": len({r.get("generation") for r in rows}),
@@ -308,25 +321,38 @@ def figure_final_tool(runs: list[Run], path: Path) -> Path:
     return path
 
 
-def figure_final_objects(runs: list[Run], path: Path) -> Path:
-    """Fig. 3: final object positions from above, coloured by object, one panel per run."""
+def _figure_object_positions(runs: list[Run], path: Path, key: str, title: str) -> Path:
+    """Object positions from the rows' ``key`` poses seen from above, coloured by object, one panel per run."""
     fig, axes = _figure(1, len(runs), (5.2 * len(runs), 5.6))
     pts = []
     for ax, run in zip(axes, runs, strict=True):
         _top_view_background(ax, run)
         for name in run.object_names:
-            p = [r["final_poses"][name] for r in run.executed if name in (r.get("final_poses") or {})]
+            p = [r[key][name] for r in run.executed if name in (r.get(key) or {})]
             p = np.array(p, dtype=float).reshape(-1, 7)
             pts.append(p)
             ax.scatter(
                 p[:, 1], p[:, 0], s=8, color=run.colors[name], edgecolors="0.25", linewidths=0.3, zorder=4, label=name
             )
-        ax.set_title(f"{run.label}: {len(run.executed)} executed movements", fontsize=10)
+        n, e = sum(bool(r.get(key)) for r in run.executed), len(run.executed)
+        shown = f"{n} executed movements" if n == e else f"{n} of {e} executed movements (the others not recorded)"
+        ax.set_title(f"{run.label}: {shown}", fontsize=10)
         ax.legend(loc="upper right", fontsize=8, markerscale=2)
     _set_top_view_limits(axes, runs, pts)
-    fig.suptitle("Final object positions, seen from above")
+    fig.suptitle(title)
     fig.savefig(path, dpi=120)
     return path
+
+
+def figure_final_objects(runs: list[Run], path: Path) -> Path:
+    """Fig. 3: final object positions from above, coloured by object, one panel per run."""
+    return _figure_object_positions(runs, path, "final_poses", "Final object positions, seen from above")
+
+
+def figure_start_objects(runs: list[Run], path: Path) -> Path:
+    """The objects' start positions (settled, at each episode's first frame) from above, drawn like Fig. 3."""
+    starts = ", ".join(f"{r.starts} starts" for r in runs)
+    return _figure_object_positions(runs, path, "start_poses", f"Start object positions, seen from above ({starts})")
 
 
 def figure_accumulated_contacts(runs: list[Run], path: Path) -> Path:
@@ -378,8 +404,13 @@ def _fmt(v: Any, digits: int = 3) -> str:
     return str(v)
 
 
-def markdown(summaries: list[dict[str, Any]], labels: list[str], comparison: dict[str, Any] | None) -> str:
-    """The summary as a Markdown document."""
+def markdown(
+    summaries: list[dict[str, Any]],
+    labels: list[str],
+    comparison: dict[str, Any] | None,
+    figures: dict[str, str] | None = None,
+) -> str:
+    """The summary as a Markdown document; ``figures``: the figures written, by key (default: `FIGURES`)."""
     head = "| | " + " | ".join(labels) + " |\n|---|" + "---|" * len(labels) + "\n"
 
     def row(name: str, values: list[Any]) -> str:
@@ -388,6 +419,7 @@ def markdown(summaries: list[dict[str, Any]], labels: list[str], comparison: dic
     objects = list(summaries[0]["contacts_per_object"])
     body = ""
     body += row("explorer", [s["explorer"] for s in summaries])
+    body += row("starts (fixed: the task's scene; varied: drawn layouts)", [s.get("starts") for s in summaries])
     body += row("attempted movements", [s["attempts"] for s in summaries])
     body += row("executed movements (episodes)", [s["executed"] for s in summaries])
     body += row("feasible fraction", [s["feasible_fraction"] for s in summaries])
@@ -449,7 +481,7 @@ def markdown(summaries: list[dict[str, Any]], labels: list[str], comparison: dic
         text += f"- moved objects' 2 cm cells ratio: {_fmt(comparison['moved_cells_ratio'], 2)}\n"
         for name, v in comparison["contact_ratio_per_object"].items():
             text += f"- {name}: {_fmt(v, 2)}\n"
-    text += "\n## Figures\n\n" + "".join(f"![{k}]({v})\n" for k, v in FIGURES.items())
+    text += "\n## Figures\n\n" + "".join(f"![{k}]({v})\n" for k, v in (figures or FIGURES).items())
     return text
 
 
@@ -465,10 +497,13 @@ def write_report(root: str | Path, compare_to: str | Path | None = None, out: st
     figure_final_objects(runs, out / FIGURES["fig3"])
     figure_accumulated_contacts(runs, out / FIGURES["fig4"])
     figure_contacts_per_object(runs, out / FIGURES["fig5"])
-    result = {"run": summaries[0], "figures": {k: str(out / v) for k, v in FIGURES.items()}}
+    figures = dict(FIGURES)
+    if any(r.has_start_poses for r in runs):
+        figures[START_FIGURE[0]] = figure_start_objects(runs, out / START_FIGURE[1]).name
+    result = {"run": summaries[0], "figures": {k: str(out / v) for k, v in figures.items()}}
     if comparison is not None:
         result["compare"] = summaries[1]
         result["comparison"] = comparison
     (out / "summary.json").write_text(json.dumps(result, indent=2) + "\n")
-    (out / "summary.md").write_text(markdown(summaries, [r.label for r in runs], comparison))
+    (out / "summary.md").write_text(markdown(summaries, [r.label for r in runs], comparison, figures))
     return result

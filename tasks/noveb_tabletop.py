@@ -29,12 +29,13 @@ SPEC = register_task(
         # PR2's head camera: 0.38 m above the shoulders, tilted down at the table
         camera=CameraSpec(eye=(0.05, 0.0, 1.32), target=(0.88, -0.08, TABLE_TOP), fov=0.92),
         # varied starts: each object anywhere in a wide region around its place in the paper's scene (the regions
-        # overlap; footprints keep 2 cm apart), any yaw; the ball stays in the back half, beyond the arm's reach
+        # overlap; footprints keep 2 cm apart), any yaw, always whole in the head camera's view (the search sees
+        # nothing else); the ball stays in the back, beyond the arm's reach
         starts=StartDistribution(
             regions=(
-                PlacementRegion(x=(0.60, 0.98), y=(0.02, 0.45)),  # gray box: left
+                PlacementRegion(x=(0.64, 0.95), y=(0.02, 0.22)),  # gray box: left
                 PlacementRegion(x=(0.58, 0.92), y=(-0.32, 0.14)),  # can: front centre
-                PlacementRegion(x=(0.60, 0.98), y=(-0.52, -0.16)),  # blue box: right
+                PlacementRegion(x=(0.60, 0.95), y=(-0.33, -0.12)),  # blue box: right
                 PlacementRegion(x=(0.98, 1.25), y=(-0.40, 0.25)),  # ball: back
             ),
         ),

@@ -35,15 +35,15 @@ SPEC = register_task(
         camera=CameraSpec(eye=(0.05, 0.0, 1.32), target=(0.88, -0.08, TABLE_TOP), fov=0.92),
         # x 0.77..0.79, y -0.50..-0.20, from the table top up 6 cm
         extra_obstacles=(Box("wall", (0.78, -0.35, TABLE_TOP + WALL_HEIGHT / 2), (0.01, 0.15, WALL_HEIGHT / 2)),),
-        # varied starts: wide regions around each object's place (none overlapping the wall); the purple cube
-        # stays behind the wall, the others in front of it
+        # varied starts: wide regions around each object's place (none overlapping the wall), whole in the head
+        # camera's view; the purple cube stays behind the wall, the others in front of it
         starts=StartDistribution(
             regions=(
-                PlacementRegion(x=(0.62, 1.00), y=(0.05, 0.45)),  # crate
+                PlacementRegion(x=(0.64, 0.98), y=(0.0, 0.18)),  # crate
                 PlacementRegion(x=(0.58, 0.92), y=(-0.18, 0.18)),  # bottle
-                PlacementRegion(x=(0.55, 0.74), y=(-0.52, -0.16)),  # orange cube, in front of the wall
+                PlacementRegion(x=(0.55, 0.74), y=(-0.37, -0.15)),  # orange cube, in front of the wall
                 PlacementRegion(x=(0.55, 0.74), y=(-0.32, 0.02)),  # green cube
-                PlacementRegion(x=(0.83, 1.02), y=(-0.52, -0.18)),  # purple cube, behind the wall
+                PlacementRegion(x=(0.83, 1.02), y=(-0.50, -0.20)),  # purple cube, behind the wall
             ),
         ),
     )

@@ -4,6 +4,7 @@ and a worker that dies mid-run is replaced without losing or changing anything."
 from __future__ import annotations
 
 import hashlib
+import json
 import os
 import signal
 import time
@@ -100,12 +101,18 @@ def test_four_worker_processes_on_two_cores_write_the_same_dataset_as_one(one_wo
 
 
 def test_kill_9_of_a_run_with_workers_then_resume_writes_the_same_dataset(one_worker, tmp_path):
+    out = tmp_path / "killed"
+    kill_then_resume(out, ARGS)
+    assert_same_dataset(one_worker, out)
+
+
+def kill_then_resume(out, args: list[str]) -> None:
+    """A run with 2 workers killed with SIGKILL (with its workers) past a commit point, then resumed."""
     import subprocess
     import sys
 
-    out = tmp_path / "killed"
     cmd = [sys.executable, "-m", "babblegen.cli", "generate", "--out", str(out), "--seed", "2", "--workers", "2"]
-    proc = subprocess.Popen([*cmd, *ARGS], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    proc = subprocess.Popen([*cmd, *args], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
     rows = out / "babblegen" / "attempts.jsonl"
     deadline = time.time() + 300
     while not (rows.exists() and rows.read_bytes().count(b"\n") >= 20):  # past a commit point, before the end
@@ -114,7 +121,52 @@ def test_kill_9_of_a_run_with_workers_then_resume_writes_the_same_dataset(one_wo
     os.killpg(proc.pid, signal.SIGKILL)  # the run and its workers, at once
     proc.wait(timeout=60)
     assert main(["generate", "--out", str(out), "--resume", "--workers", "2", "--no-progress"]) == 0
-    assert_same_dataset(one_worker, out)
+
+
+VARIED = [*ARGS, "--starts", "varied"]
+
+
+@pytest.fixture(scope="module")
+def one_worker_varied(tmp_path_factory):
+    out = tmp_path_factory.mktemp("par") / "one-varied"
+    assert main(["generate", "--out", str(out), "--seed", "2", "--workers", "1", *VARIED]) == 0
+    rows = [r for r in read_attempts(out) if r["feasible"]]
+    assert len({json.dumps(r["start_poses"]) for r in rows}) >= len(rows) // 3, "many starts"
+    assert {r["start"]["source"] for r in rows} == {"drawn", "inherited"}
+    return out
+
+
+def test_a_varied_start_dataset_records_each_start_where_its_episode_begins(one_worker_varied):
+    out = one_worker_varied
+    rows = [r for r in read_attempts(out) if r["feasible"]]
+    ds = load_dataset(out, read_run_info(out)["repo_id"])
+    episode = np.asarray(ds.hf_dataset["episode_index"])
+    env = np.asarray(ds.hf_dataset["observation.environment_state"]).reshape(len(episode), -1, 7)
+    names = read_run_info(out)["object_names"]
+    for r in rows:
+        first = np.flatnonzero(episode == r["episode_index"])[0]
+        np.testing.assert_allclose(env[first], [r["start_poses"][n] for n in names], atol=2e-6)
+        if r["start"]["source"] == "drawn":
+            assert r["start"]["drawn_at"] == r["attempt"]
+        else:  # inherited from its parent, which ran from it
+            parent = next(p for p in read_attempts(out) if p["attempt"] == r["parent"])
+            assert parent["start"]["drawn_at"] == r["start"]["drawn_at"]
+    card = (out / "README.md").read_text()
+    assert "varied: each start is a layout" in card
+    assert read_run_info(out)["config"]["descriptor"] == "change16"
+
+
+def test_varied_starts_with_four_worker_processes_write_the_same_dataset_as_one(one_worker_varied, tmp_path):
+    out = tmp_path / "four-varied"
+    assert main(["generate", "--out", str(out), "--seed", "2", "--workers", "4", *VARIED]) == 0
+    assert_same_dataset(one_worker_varied, out)
+
+
+def test_varied_starts_killed_then_resumed_write_the_same_dataset(one_worker_varied, tmp_path):
+    out = tmp_path / "killed-varied"
+    kill_then_resume(out, VARIED)
+    assert_same_dataset(one_worker_varied, out)
+    assert read_run_info(out)["config"]["world"]["starts"] == "varied"
 
 
 def test_ray_auto_starts_a_local_cluster_and_writes_the_same_dataset(one_worker, tmp_path):
@@ -129,7 +181,8 @@ def test_ray_auto_starts_a_local_cluster_and_writes_the_same_dataset(one_worker,
     assert_same_dataset(one_worker, out)
 
 
-def test_two_ray_nodes_write_the_same_dataset_as_one_worker(one_worker, tmp_path):
+@pytest.mark.parametrize("starts", ["fixed", "varied"])
+def test_two_ray_nodes_write_the_same_dataset_as_one_worker(one_worker, one_worker_varied, tmp_path, starts):
     """A real multi-node cluster on this machine: two Ray nodes with one CPU each, so the two rollout actors
     (one CPU each) must run on different nodes."""
     ray = pytest.importorskip("ray")
@@ -141,12 +194,13 @@ def test_two_ray_nodes_write_the_same_dataset_as_one_worker(one_worker, tmp_path
         cluster.wait_for_nodes()
         address = cluster.address
         out = tmp_path / "two-nodes"
-        argv = ["generate", "--out", str(out), "--seed", "2", "--ray", address, "--workers", "2", *ARGS]
+        args = VARIED if starts == "varied" else ARGS
+        argv = ["generate", "--out", str(out), "--seed", "2", "--ray", address, "--workers", "2", *args]
         assert main(argv) == 0
     finally:
         ray.shutdown()
         cluster.shutdown()
-    assert_same_dataset(one_worker, out)
+    assert_same_dataset(one_worker_varied if starts == "varied" else one_worker, out)
     assert read_run_info(out)["config"]["ray"] == address
 
 

@@ -13,7 +13,7 @@ import pytest
 
 from babblegen.cli import main
 from babblegen.exporters.lerobot import load_dataset
-from babblegen.exporters.report import FIGURES
+from babblegen.exporters.report import FIGURES, START_FIGURE
 from babblegen.exporters.sidecar import read_attempts, read_run_info
 
 
@@ -108,9 +108,11 @@ def test_figures_are_real_images(report):
         rgb = (img[..., :3] * 255).astype(np.uint32)
         colours = np.unique(rgb[..., 0] << 16 | rgb[..., 1] << 8 | rgb[..., 2])
         assert len(colours) > 20, f"{name} is nearly a flat colour"
-    assert set(summary["figures"]) == set(FIGURES)
+    assert set(summary["figures"]) == {*FIGURES, START_FIGURE[0]}  # these runs record their start poses
+    assert (out / START_FIGURE[1]).stat().st_size > 10_000
     md = (out / "summary.md").read_text()
     assert "contacts per attempt" in md and "random babbling" in md and "contact ratio" in md
+    assert START_FIGURE[1] in md and "| starts (" in md and summary["run"]["starts"] == "fixed"
 
 
 def test_report_needs_only_the_sidecar_and_defaults_to_dir_report(small_noveb_dataset, tmp_path):
@@ -171,3 +173,73 @@ def test_diversity_counts_distinct_interactions_by_hand():
     assert d["novelty_positive_share"] == 2 / 4
     # 1 cm layouts: the can at cells (61, 1), (63, 1), (60, 0) and (61, 1) again, the gray box never moved
     assert d["distinct_outcomes"] == 3
+
+
+# --- without a simulator: a sidecar table written by hand --------------------------------------------------------
+def fake_run(root: Path, starts: str | None, start_poses: bool) -> Path:
+    """A dataset's sidecar alone: run.json (``world.starts`` left out when None) and three executed rows, with
+    ``start`` and ``start_poses`` only when ``start_poses`` (older datasets have neither)."""
+    from babblegen.tasks import get_task
+
+    task = get_task("noveb_tabletop").to_dict()
+    world = {} if starts is None else {"starts": starts}
+    info = {"config": {"explorer": "noveb", "world": world}, "task": task}
+    (root / "babblegen").mkdir(parents=True)
+    (root / "babblegen" / "run.json").write_text(json.dumps(info))
+    rng = np.random.default_rng(0)
+    rows = []
+    for i in range(3):
+        poses = {
+            o["name"]: [*(np.array(o["xy"]) + rng.normal(0, 0.03, 2)), 0.75, 1.0, 0.0, 0.0, 0.0]
+            for o in task["objects"]
+        }
+        row = {"attempt": i, "generation": 0, "explorer": "noveb", "kind": "ee_waypoints", "genome": [[0.1 * i] * 3]}
+        row |= {"feasible": True, "episode_index": i, "novelty": 0.1, "archived": True, "final_ee_pos": [0.6, 0.0, 0.8]}
+        row |= {"touched": dict.fromkeys(poses, False), "displacement": dict.fromkeys(poses, 0.0), "final_poses": poses}
+        if start_poses:
+            row |= {"start": {"source": "drawn", "drawn_at": i, "layout": [[*p[:2], 0.0] for p in poses.values()]}}
+            row |= {"start_poses": poses}
+        rows.append(row)
+    (root / "babblegen" / "attempts.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
+    return root
+
+
+@pytest.mark.parametrize(("starts", "start_poses"), [("varied", True), (None, False)])
+def test_start_figure_only_for_rows_with_start_poses(tmp_path, starts, start_poses):
+    from babblegen.exporters.report import write_report
+
+    root = fake_run(tmp_path / "ds", starts, start_poses)
+    result = write_report(root)
+    out = root / "report"
+    assert (out / START_FIGURE[1]).is_file() == start_poses
+    assert not start_poses or (out / START_FIGURE[1]).stat().st_size > 10_000
+    assert (START_FIGURE[0] in result["figures"]) == start_poses
+    assert all((out / name).is_file() for name in FIGURES.values())
+    md = (out / "summary.md").read_text()
+    assert (START_FIGURE[1] in md) == start_poses
+    assert result["run"]["starts"] == (starts or "fixed")
+    assert f"| starts (fixed: the task's scene; varied: drawn layouts) | {starts or 'fixed'} |" in md
+
+
+@pytest.mark.parametrize(
+    ("world_settings", "explorer", "says"),
+    [
+        ({}, "noveb", "fixed: every episode starts from the task's scene"),
+        ({"starts": "fixed"}, "random", "fixed: every episode starts from the task's scene"),
+        ({"starts": "varied"}, "noveb", "start mutation (probability 0.25) draws a new one"),
+        ({"starts": "varied"}, "random", "every attempt draws its own"),
+    ],
+)
+def test_dataset_card_says_how_starts_were_drawn(world_settings, explorer, says):
+    from babblegen.exporters.dataset_card import card_text
+    from babblegen.tasks import get_task
+
+    cfg = {"explorer": explorer, "task": "noveb_tabletop", "seed": 1, "noveb": {"start_mutation_prob": 0.25}}
+    cfg["world"] = {"camera_width": 64, "camera_height": 64, **world_settings}
+    run_info = {"config": cfg, "task": get_task("noveb_tabletop").to_dict(), "versions": {}}
+    counters = {"executed": 2, "attempts": 3, "contacts": 1, "generations": 1}
+    card = card_text({"fps": 10, "robot_type": "pr2_like_arm", "features": {}}, run_info, counters)
+    line = next(line for line in card.splitlines() if line.startswith("- **Starts:** "))
+    assert says in line
+    if world_settings.get("starts") == "varied":
+        assert "settled by physics" in line and "per-object regions" in line and "`start_poses`" in line

@@ -101,6 +101,7 @@ def test_run_recording_has_the_expected_entities_and_timelines(small_noveb_datas
         "/world/tool_path",
         "/world/object_paths",
         "/world/contact_events",
+        "/world/start",
         "/contacts",
         "/state",
         "/attempts/novelty",
@@ -289,6 +290,29 @@ def test_sink_rollback_drops_what_came_after_the_last_commit(sink_dir):
     assert index.tolist() == list(range(3 * T)), "the dataset-wide frame index continues after the rollback"
     _, total = temporal(read_recording(*files), "/attempts/contacts/total", "Scalars:scalars", order_by="attempt")
     assert [v[0] for v in total] == [1.0, 1.0, 2.0, 3.0]
+
+
+def test_sink_logs_each_episodes_start_once(sink_dir):
+    """The objects' frame-0 poses as labelled boxes at `world/start`: sizes static, one pose per object per
+    episode at its first frame (not per frame)."""
+    from babblegen.tasks import get_task
+
+    rng = np.random.default_rng(3)
+    sink = new_sink(sink_dir)
+    starts = []
+    for i, episode in enumerate([0, None, 1]):
+        row, rollout = fake_attempt(i, episode, rng)
+        if episode is not None:
+            rollout.frames.object_poses[0, :, :2] = rng.uniform(0.4, 0.9, (N_OBJ, 2))
+            starts.append(rollout.frames.object_poses[0, :, :3].copy())
+        sink.log(row, rollout)
+    sink.close()
+    chunks = read_recording(*recording_files(sink_dir))
+    [(static, batch)] = [c for c in chunks["/world/start"] if c[0]]
+    assert batch.column("Boxes3D:labels").to_pylist()[0] == get_task("noveb_tabletop").object_names
+    index, centers = temporal(chunks, "/world/start", "Boxes3D:centers")
+    assert index.tolist() == [0, T], "one row per episode, at its first frame"
+    np.testing.assert_allclose(np.array(centers), np.stack(starts), atol=1e-6)
 
 
 def test_sink_failure_warns_once_and_disables_it(sink_dir):

@@ -40,6 +40,29 @@ def test_layouts_stay_in_their_regions_apart_and_on_the_table(name):
             assert np.all(np.hypot(dx, dy) >= radius + task.starts.gap - 1e-12)
 
 
+@pytest.mark.parametrize("name", ["noveb_tabletop", "wall_tabletop"])
+def test_every_start_region_lies_whole_in_the_head_camera_s_view(name):
+    """The explorer sees the head image alone: an object that starts outside it could never be found."""
+    from babblegen.world.cameras import look_at_cam2world, pinhole
+
+    task = get_task(name)
+    cam = task.camera
+    world2cam = np.linalg.inv(look_at_cam2world(cam.eye, cam.target))
+    k = pinhole(128, 128, cam.fov)
+    for obj, region in zip(task.objects, task.starts.regions, strict=True):
+        r, z = obj.footprint_radius, task.table_top
+        corners = [
+            (x, y, h)
+            for x in (region.x[0] - r, region.x[1] + r)
+            for y in (region.y[0] - r, region.y[1] + r)
+            for h in (z, z + 2 * obj.half_height)
+        ]
+        cam_points = np.asarray(corners) @ world2cam[:3, :3].T + world2cam[:3, 3]
+        uv = cam_points @ k.T
+        uv = uv[:, :2] / uv[:, 2:]
+        assert (uv >= 0).all() and (uv <= 128).all(), f"{obj.name} can start outside the image: {uv.round()}"
+
+
 def test_layouts_are_wide_and_a_function_of_seed_and_attempt_alone():
     task = get_task("noveb_tabletop")
     a, b = StartSampler(task, 5), StartSampler(task, 5)
@@ -109,6 +132,27 @@ def test_noveb_children_keep_their_parents_start_unless_a_start_mutation_draws_o
     assert len(keys) == len(set(keys)), "the same genome from the same start is never attempted twice"
     clones = ex.last_clones
     assert all(c.start is not None for c in clones)
+
+
+def test_by_default_only_new_genomes_draw_new_starts_so_copies_stay_free_clones():
+    sampler = StartSampler(get_task("noveb_tabletop"), 3)
+    ex = make_explorer("noveb", {"children": 24, "start_mutation_prob": 1.0}, 3, LIMITS, START, starts=sampler)
+    asked = run_generations(ex, 6)
+    genomes = {c.index: c.genome for c in asked}
+    later = [c for c in asked if c.parent is not None]
+    assert later and all(c.start.drawn_at == c.index for c in later), "every new genome drew a new start"
+    assert all(not np.array_equal(c.genome, genomes[c.parent]) for c in later if c.parent in genomes)
+    assert len(ex.last_clones) > 0 and all(c.start is not None for c in ex.last_clones)
+    every = make_explorer(
+        "noveb",
+        {"children": 24, "start_mutation_prob": 1.0, "start_mutation_of": "all_children"},
+        3,
+        LIMITS,
+        START,
+        starts=StartSampler(get_task("noveb_tabletop"), 3),
+    )
+    run_generations(every, 6)
+    assert len(every.last_clones) == 0, "copies of a parent from a new start are new attempts"
 
 
 def test_start_mutation_zero_keeps_every_lineage_on_its_first_start_and_makes_clones():

@@ -225,6 +225,58 @@ def test_reset_restores_start_poses(world):
     np.testing.assert_allclose(w.start_poses[CAN], rest, atol=1e-6)
 
 
+# --- varied starts ----------------------------------------------------------------------------------------------
+def test_fixed_start_is_the_task_scene_exactly(world, push):
+    assert np.array_equal(push.start_poses, world.start_poses), "displacements from the same start as before"
+
+
+def test_varied_starts_settle_in_their_layout_and_record_changes_from_their_own_start(world):
+    from babblegen.starts import StartSampler, layout_poses
+
+    w, sampler = world, StartSampler(world.task, seed=4)
+    radius = np.array([o.footprint_radius for o in w.task.objects])
+    touched_some = False
+    for attempt in range(12):
+        start = sampler.draw(attempt)
+        command = waypoints(w, PUSH_THROUGH_CAN)
+        r = w.rollout(Command(command.kind, command.values, start.layout))
+        assert r.feasible, r.reason
+        f = r.frames
+        # settled where it was placed: within a millimetre, resting on the table top, before the first frame
+        np.testing.assert_allclose(r.start_poses[:, :3], layout_poses(w.task, start.layout)[:, :3], atol=1e-3)
+        np.testing.assert_allclose(f.object_poses[0], r.start_poses, atol=1e-6)
+        untouched = ~f.contacts[:2].any(axis=0)
+        first_step = np.linalg.norm(f.object_poses[1, :, :3] - f.object_poses[0, :, :3], axis=1)
+        assert first_step[untouched].max(initial=0) <= 0.005, "no untouched object moves in the first two frames"
+        np.testing.assert_allclose(
+            r.displacement, np.linalg.norm(r.final_poses[:, :3] - r.start_poses[:, :3], axis=1), atol=1e-9
+        )
+        touched_some |= bool(r.touched.any())
+        near = np.hypot(*(start.layout[:, None, :2] - start.layout[None, :, :2]).transpose(2, 0, 1))
+        assert (near + np.eye(len(radius)) * 9 > radius[:, None] + radius).all()
+    # the same push finds the can in some starts and not in others, the point of varying them
+    assert touched_some
+
+
+def test_a_varied_start_is_a_function_of_its_layout_alone(world):
+    from babblegen.starts import StartSampler
+
+    start = StartSampler(world.task, seed=5).draw(3)
+    command = Command("ee_waypoints", world.task.workspace.to_norm(SWEEP_A), start.layout)
+    a = world.rollout(command)
+    world.rollout(waypoints(world, SWEEP_B))
+    b = world.rollout(command)
+    for field in ("images", "state", "object_poses", "contacts"):
+        assert np.array_equal(getattr(a.frames, field), getattr(b.frames, field)), field
+
+
+def test_a_start_that_does_not_settle_is_not_used(world):
+    layout = np.array([[0.7, 0.25, 0.0], [0.7, -0.1, 0.0], [0.8, -0.4, 0.0], [1.5, 0.0, 0.0]])  # the ball in the air
+    r = world.rollout(Command("ee_waypoints", world.task.workspace.to_norm(FREE_AIR), layout))
+    assert not r.feasible and r.reason in ("start_not_at_rest", "start_off_table") and r.frames is None
+    assert r.reason in REASONS
+
+
 # --- joint-space babbling and infeasible commands -----------------------------------------------------------
 def test_outcome_depends_on_the_command_alone(world):
     """A, B, A, C, A, all with contact: every run of A gives identical frames, whatever ran before."""

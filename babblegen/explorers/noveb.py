@@ -69,8 +69,11 @@ class NovEBConfig:
     mutation_scope: str = "waypoint"  # noise on one waypoint drawn at random ("genome": on all, the paper)
     reuse_clones: bool = True
     max_waypoints: int | None = None  # extension stops at this many waypoints (None: unbounded, the paper)
-    # with varied starts: a child runs from its parent's start, or, with this probability, from a new one
+    # with varied starts: a child runs from its parent's start, or, with this probability, from a new one; which
+    # children may draw one: "new_genomes" (those whose genome differs from their parent's: a copy of a parent
+    # stays a clone, free) or "all_children" (copies too: the same movement from a new start)
     start_mutation_prob: float = 0.5
+    start_mutation_of: str = "new_genomes"
 
     def __post_init__(self) -> None:
         if int(self.population) != self.population or self.population < 2:
@@ -95,6 +98,10 @@ class NovEBConfig:
             raise ValueError(f"unknown archive_policy {self.archive_policy!r}; known: {sorted(ARCHIVE_POLICIES)}")
         if self.mutation_scope not in MUTATION_SCOPES:
             raise ValueError(f"unknown mutation_scope {self.mutation_scope!r}; known: {list(MUTATION_SCOPES)}")
+        if self.start_mutation_of not in START_MUTATION_OF:
+            raise ValueError(
+                f"unknown start_mutation_of {self.start_mutation_of!r}; known: {list(START_MUTATION_OF)}"
+            )
         if self.tie_break not in TIE_BREAKS:
             raise ValueError(f"unknown tie_break {self.tie_break!r}; known: {list(TIE_BREAKS)}")
 
@@ -111,6 +118,7 @@ def upgrade_stored_config(config: dict[str, Any]) -> dict[str, Any]:
 
 
 TIE_BREAKS = ("newest", "oldest", "random", "shortest")
+START_MUTATION_OF = ("new_genomes", "all_children")
 MUTATION_SCOPES = ("genome", "waypoint")
 
 
@@ -196,7 +204,8 @@ class NovEB(ArchiveExplorer):
             if draws[i, 2] < cfg.extend_prob and (cfg.max_waypoints is None or len(g) < cfg.max_waypoints):
                 g = extend(g, self.start_norm, self.rng)
             start = self._parent_starts[p]
-            if varied and draws[i, 3] < cfg.start_mutation_prob:
+            may_move = cfg.start_mutation_of == "all_children" or not np.array_equal(g, self._parents[p])
+            if varied and may_move and draws[i, 3] < cfg.start_mutation_prob:
                 start = NEW_START
             children.append((np.array(g, dtype=np.float64), int(self._parent_index[p]), start))
         return children

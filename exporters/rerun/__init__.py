@@ -14,6 +14,7 @@ Entities:
     world/head_camera (pose and pinhole frustum), head_camera/image        head-camera frames (JPEG)
     world/tool (red while touching), world/tool_path, world/tool_waypoints  the tool point, its path, its targets
     world/object_paths, world/contact_events                                object paths, where contacts happened
+    world/start                                                             the objects at each episode's frame 0
     contacts, state                                                         per-frame scalars (object, joint)
     attempts/{novelty,archived,feasible}, attempts/contacts/*              per-attempt scalars
     overview/final_tool, overview/final_objects/<name>, overview/outlines  final positions seen from above

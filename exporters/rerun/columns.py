@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from .scene import CONTACT_COLOR, HEAD_IMAGE, TOOL_COLOR, Scene, quat_xyzw
+from .scene import CONTACT_COLOR, HEAD_IMAGE, START, TOOL_COLOR, Scene, quat_xyzw
 
 if TYPE_CHECKING:
     import rerun as rr
@@ -115,7 +115,8 @@ class EpisodeColumns:
     chunk carries a few KiB of schema) and logging costs a handful of calls per batch, not per frame.
 
     Per frame: arm shapes, object poses, the tool point (red while touching), head-camera JPEGs, contact and
-    joint scalars. At each episode's first frame: its tool path, waypoints, object paths and contact places.
+    joint scalars. At each episode's first frame: its tool path, waypoints, object paths, contact places and
+    where the objects started (frame 0's poses, as wireframe boxes at `START`).
     """
 
     def __init__(self, scene: Scene) -> None:
@@ -264,6 +265,13 @@ class EpisodeColumns:
                 strips=[e.objects[:, j, :3] for e in eps for j in range(n_obj)],
                 colors=[scene.colors[n] for _ in eps for n in scene.object_names],
                 labels=[n for _ in eps for n in scene.object_names],
+            ).partition([n_obj] * len(eps)),
+        )
+        rec.send_columns(
+            START,
+            indexes=first,
+            columns=rr.Boxes3D.columns(
+                centers=cat([e.objects[0, :, :3] for e in eps]), quaternions=cat([e.objects[0, :, 3:] for e in eps])
             ).partition([n_obj] * len(eps)),
         )
         objs = cat([e.events[1] for e in eps]).astype(int)

@@ -27,6 +27,9 @@ OBSTACLE_COLOR = (235, 230, 217, 255)
 # draws an image black, in the 2D view and as a black quad that hides the table in the 3D view (checked with
 # scripts/viewer_screenshot.sh). The frustum stays in the 3D scene.
 HEAD_IMAGE = "head_camera/image"
+# each episode's start: a wireframe box per object where it stood at frame 0 (sizes static, poses per episode)
+START = "world/start"
+START_LINE_RADIUS = 0.002
 
 
 def robot_of(task: dict[str, Any]):
@@ -107,6 +110,11 @@ class Scene:
         half = {"box": lambda s: s[2], "cylinder": lambda s: s[1], "sphere": lambda s: s[0]}[obj["shape"]](obj["size"])
         return np.array([obj["xy"][0], obj["xy"][1], self.table_top + half])
 
+    def half_sizes(self) -> np.ndarray:
+        """(n_objects, 3) half extents of each object's bounding box, in its own frame."""
+        boxes = {"box": lambda s: s[:3], "cylinder": lambda s: [s[0], s[0], s[1]], "sphere": lambda s: [s[0]] * 3}
+        return np.array([boxes[o["shape"]](o["size"]) for o in self.objects], dtype=np.float64)
+
     def link_transforms(self, state: np.ndarray) -> np.ndarray:
         """World poses (T, n_links, 4, 4) of the arm's links for joint states (T, dof) in dataset order."""
         q = np.asarray(state, dtype=np.float64)[:, self._order]
@@ -176,7 +184,8 @@ def log_scene(
     image_size: tuple[int, int] | None = None,
     cameras: list[dict[str, Any]] | None = None,
 ) -> None:
-    """Static parts: world axes, table, robot link shapes, object shapes, cameras, overview background."""
+    """Static parts: world axes, table, robot link shapes, object shapes and start boxes, cameras, overview
+    background."""
     import rerun as rr
 
     rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
@@ -212,6 +221,14 @@ def log_scene(
         else:
             arch = rr.Ellipsoids3D(half_sizes=[[size[0]] * 3], colors=color, fill_mode="solid")
         rec.log(f"world/objects/{name}/shape", arch, static=True)  # posed per frame, see EpisodeColumns
+    start = rr.Boxes3D(
+        half_sizes=scene.half_sizes(),
+        colors=[scene.colors[n] for n in scene.object_names],
+        labels=scene.object_names,
+        radii=START_LINE_RADIUS,
+        fill_mode="majorwireframe",
+    )
+    rec.log(START, start, static=True)  # placed at each episode's first frame, see EpisodeColumns
     log_frustum(rec, "world/head_camera", scene.task["camera"], image_size)
     if cameras and image_size is not None:
         log_cameras(rec, scene, cameras, image_size)

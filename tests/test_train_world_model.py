@@ -1,0 +1,125 @@
+"""examples/train_world_model.py's parts on synthetic data: no simulator, no dataset on disk but a sidecar."""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def wm():
+    spec = importlib.util.spec_from_file_location("train_world_model", ROOT / "examples" / "train_world_model.py")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module  # its dataclasses look their module up
+    spec.loader.exec_module(module)
+    torch.set_num_threads(1)  # as the script runs (and much faster on a busy machine)
+    return module
+
+
+def synthetic(wm, n: int, seed: int, n_objects: int = 3):
+    """Episodes whose first input says how far object 0 moves along x; the others never move."""
+    rng = np.random.default_rng(seed)
+    x = rng.normal(size=(n, 8))
+    disp = np.zeros((n, n_objects, 2))
+    disp[:, 0, 0] = np.where(x[:, 0] > 0, 0.1 * x[:, 0], 0.0)
+    moved = np.linalg.norm(disp, axis=2) > 0.01
+    genomes = np.array([f"g{seed}:{i}" for i in range(n)])
+    return wm.Episodes(x, disp, moved, genomes, [f"o{i}" for i in range(n_objects)])
+
+
+def test_named_dirs(wm):
+    assert wm.named_dirs("noveb=a/b,c") == ("noveb", [Path("a/b"), Path("c")])
+    for bad in ("noveb", "=a", "noveb="):
+        with pytest.raises(argparse.ArgumentTypeError):
+            wm.named_dirs(bad)
+
+
+def test_yaw_of_a_rotation_about_z(wm):
+    for angle in (-3.0, -0.5, 0.0, 1.2, 3.1):
+        q = np.array([np.cos(angle / 2), 0.0, 0.0, np.sin(angle / 2)])
+        assert wm.yaw(q) == pytest.approx(angle)
+    flipped = np.array([0.0, 1.0, 0.0, 0.0])  # upside down about x: no yaw
+    assert wm.yaw(flipped) == pytest.approx(0.0)
+
+
+def test_occupancy_is_one_area_averaged_channel_per_id(wm):
+    mask = np.zeros((8, 8), dtype=np.uint16)
+    mask[:4, :4] = 5  # top-left cell of a 2 x 2 grid, fully
+    mask[4:, 4:6] = 7  # half of the bottom-right cell
+    maps = wm.occupancy(mask, [5, 7, 9], 2)
+    assert maps.shape == (3, 2, 2)
+    np.testing.assert_allclose(maps[0], [[1, 0], [0, 0]])
+    np.testing.assert_allclose(maps[1], [[0, 0], [0, 0.5]])
+    assert not maps[2].any()  # an object out of view has an empty map
+
+
+def test_mask_ids_by_name(wm):
+    features = {wm.MASKS: {"info": {"ids": {"0": "background", "4": "can", "5": "ball"}}}}
+    assert wm.mask_ids(features, ["ball", "can"], Path("d")) == [5, 4]
+    with pytest.raises(SystemExit, match="cube"):
+        wm.mask_ids(features, ["cube"], Path("d"))
+    with pytest.raises(SystemExit, match="no-segmentation"):
+        wm.mask_ids({}, ["can"], Path("d"))
+
+
+def test_scores(wm):
+    truth = wm.Episodes(
+        np.zeros((2, 1)),
+        np.array([[[0.03, 0.04], [0.0, 0.0]], [[0.0, 0.0], [0.1, 0.0]]]),
+        np.array([[True, False], [False, True]]),
+        np.array(["a", "b"]),
+        ["p", "q"],
+    )
+    nothing = wm.scores(np.zeros_like(truth.disp), np.zeros_like(truth.moved), truth)
+    assert nothing["f1"] == 0.0
+    assert nothing["median_cm"] == pytest.approx(7.5)  # median of 5 cm and 10 cm
+    perfect = wm.scores(truth.disp, truth.moved, truth)
+    assert perfect == {"f1": 1.0, "median_cm": 0.0}
+    half = wm.scores(truth.disp, np.array([[True, True], [False, False]]), truth)
+    assert half["f1"] == pytest.approx(0.5)  # tp 1, fp 1, fn 1
+    still = wm.Episodes(truth.x, np.zeros_like(truth.disp), np.zeros_like(truth.moved), truth.genomes, truth.objects)
+    assert np.isnan(list(wm.scores(still.disp, still.moved, still).values())).all()
+
+
+def test_experiment_is_seeded_and_learns(wm):
+    sources = {"a": [synthetic(wm, 60, 1), synthetic(wm, 60, 2)], "b": [synthetic(wm, 40, 3)]}
+    tests = {"held_out": synthetic(wm, 50, 9)}
+    out = wm.experiment(sources, tests, n=40, epochs=60, seed=0, hidden=32)
+    assert list(out["held_out"]) == [wm.BASELINE, "a", "b"]
+    for scores in out["held_out"].values():
+        assert len(scores["f1"]) == len(scores["median_cm"]) == 2  # one value per repeat
+    assert out["held_out"][wm.BASELINE]["f1"] == [0.0, 0.0]
+    assert min(out["held_out"]["a"]["f1"]) > 0.5  # the signal is in the input
+    assert out == wm.experiment(sources, tests, n=40, epochs=60, seed=0, hidden=32)
+    table = wm.markdown(out["held_out"])
+    assert len(table) == 5 and all(line.startswith("| ") for line in table)  # header, rule, baseline, a, b
+
+
+def test_union_and_take(wm):
+    a, b = synthetic(wm, 5, 1), synthetic(wm, 3, 2)
+    both = wm.Episodes.union([a, b])
+    assert len(both.x) == 8 and both.genomes[5] == "g2:0"
+    assert both.take(np.array([0, 7])).genomes.tolist() == ["g1:0", "g2:2"]
+    with pytest.raises(SystemExit, match="different objects"):
+        wm.Episodes.union([a, synthetic(wm, 3, 2, n_objects=2)])
+
+
+def test_genome_keys_from_the_sidecar(wm, tmp_path: Path):
+    rows = [
+        {"attempt": 0, "episode_index": 1, "kind": "noveb", "genome": [[0.1, 0.2]]},
+        {"attempt": 1, "episode_index": None, "kind": "noveb", "genome": [[9.0]]},  # infeasible: no episode
+        {"attempt": 2, "episode_index": 0, "kind": "noveb", "genome": [[0.1, 0.2]]},
+    ]
+    (tmp_path / "babblegen").mkdir()
+    (tmp_path / "babblegen" / "attempts.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
+    keys = wm.genome_keys(tmp_path, np.array([0, 1]))
+    assert keys[0] == keys[1] == "noveb:[[0.1, 0.2]]"
