@@ -17,7 +17,7 @@ import numpy as np
 from babblegen.scene import TaskSpec
 from babblegen.world.settings import START_MODES
 
-__all__ = ["START_MODES", "Start", "StartSampler", "layout_poses", "yaw_quaternion"]
+__all__ = ["NEW_START", "START_MODES", "Start", "StartDraw", "StartSampler", "layout_poses", "yaw_quaternion"]
 
 _STREAM = 0x5747A  # the start draws' own random stream, apart from the explorer's and the rollouts'
 _MAX_TRIES = 10_000
@@ -26,23 +26,40 @@ _MAX_TRIES = 10_000
 @dataclass
 class Start:
     """A drawn start: ``layout`` is (n_objects, 3) x, y (metres) and yaw (radians); ``drawn_at`` the attempt index
-    it was drawn for (`StartSampler.draw` rebuilds it from that and the run seed)."""
+    it was drawn for; ``origin`` how: "drawn" whole (`StartSampler.draw` rebuilds it from the index and the run
+    seed) or "moved", one object of a parent's start moved (`StartSampler.move_one`)."""
 
     layout: np.ndarray
     drawn_at: int
+    origin: str = "drawn"
 
     def key(self) -> bytes:
         """What identifies the start in a genome's identity: the exact layout."""
         return np.ascontiguousarray(self.layout, dtype=np.float64).tobytes()
 
     def to_dict(self) -> dict:
-        return {"layout": np.asarray(self.layout).tolist(), "drawn_at": int(self.drawn_at)}
+        return {"layout": np.asarray(self.layout).tolist(), "drawn_at": int(self.drawn_at), "origin": self.origin}
 
     @classmethod
     def from_dict(cls, data: dict | None) -> Start | None:
         if data is None:
             return None
-        return cls(np.asarray(data["layout"], dtype=np.float64).reshape(-1, 3), int(data["drawn_at"]))
+        layout = np.asarray(data["layout"], dtype=np.float64).reshape(-1, 3)
+        return cls(layout, int(data["drawn_at"]), data.get("origin", "drawn"))
+
+
+@dataclass(frozen=True)
+class StartDraw:
+    """A proposal's start still to be drawn, for the attempt index it becomes: a whole new layout, or, given a
+    ``parent`` start, that layout with one object moved."""
+
+    parent: Start | None = None
+
+    def resolve(self, sampler: StartSampler, attempt: int) -> Start:
+        return sampler.draw(attempt) if self.parent is None else sampler.move_one(self.parent, attempt)
+
+
+NEW_START = StartDraw()
 
 
 def yaw_quaternion(yaw: np.ndarray) -> np.ndarray:
@@ -75,29 +92,42 @@ class StartSampler:
         rng = np.random.default_rng([self.seed, _STREAM, int(attempt)])
         return Start(self.layout(rng), int(attempt))
 
+    def move_one(self, parent: Start, attempt: int) -> Start:
+        """The parent's layout with one object, drawn uniformly, placed anew in its region (the others stay)."""
+        rng = np.random.default_rng([self.seed, _STREAM, int(attempt)])
+        layout = np.array(parent.layout, dtype=np.float64)
+        i = int(rng.integers(len(layout)))
+        others = np.ones(len(layout), dtype=bool)
+        others[i] = False
+        layout[i] = self._place(i, layout[others], self.radius[others], rng)
+        return Start(layout, int(attempt), "moved")
+
     def layout(self, rng: np.random.Generator) -> np.ndarray:
         """Objects placed in turn, each redrawn until it keeps its distances (`StartDistribution`)."""
-        dist = self.task.starts
         placed = np.zeros((len(self.radius), 3))
-        for i, region in enumerate(dist.regions):
-            for _ in range(_MAX_TRIES):
-                x, y, yaw = rng.uniform(*region.x), rng.uniform(*region.y), rng.uniform(*region.yaw)
-                if self._fits(i, x, y, placed[:i], dist.gap):
-                    placed[i] = (x, y, yaw)
-                    break
-            else:
-                raise ValueError(
-                    f"task {self.task.name!r}: no place for {self.task.objects[i].name!r} in its start region "
-                    f"after {_MAX_TRIES} draws; widen the region or lower the gap"
-                )
+        for i in range(len(placed)):
+            placed[i] = self._place(i, placed[:i], self.radius[:i], rng)
         return placed
 
-    def _fits(self, i: int, x: float, y: float, placed: np.ndarray, gap: float) -> bool:
+    def _place(self, i: int, others: np.ndarray, radii: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """(x, y, yaw) of object ``i`` in its region, drawn until it keeps its distances from ``others``."""
+        dist = self.task.starts
+        region = dist.regions[i]
+        for _ in range(_MAX_TRIES):
+            x, y, yaw = rng.uniform(*region.x), rng.uniform(*region.y), rng.uniform(*region.yaw)
+            if self._fits(i, x, y, others, radii, dist.gap):
+                return np.array([x, y, yaw])
+        raise ValueError(
+            f"task {self.task.name!r}: no place for {self.task.objects[i].name!r} in its start region "
+            f"after {_MAX_TRIES} draws; widen the region or lower the gap"
+        )
+
+    def _fits(self, i: int, x: float, y: float, others: np.ndarray, radii: np.ndarray, gap: float) -> bool:
         r = self.radius[i]
         x0, x1, y0, y1 = self._table
         if not (x0 + r + gap <= x <= x1 - r - gap and y0 + r + gap <= y <= y1 - r - gap):
             return False
-        if len(placed) and np.any(np.hypot(placed[:, 0] - x, placed[:, 1] - y) < self.radius[: len(placed)] + r + gap):
+        if len(others) and np.any(np.hypot(others[:, 0] - x, others[:, 1] - y) < radii + r + gap):
             return False
         for box in self.task.extra_obstacles:  # axis-aligned footprint of a static obstacle
             dx = max(abs(x - box.center[0]) - box.half_extents[0], 0.0)

@@ -143,7 +143,7 @@ def views_grid(ds, in_metres, frames: list[int], keys: list[str], colors: list, 
                 gray = (np.clip((depth - 0.2) / 2.8, 0, 1) * 255).astype(np.uint8)
                 tiles.append(np.repeat(gray[..., None], 3, axis=2))
             elif key.endswith("_segmentation"):
-                tiles.append(palette[(value[0].numpy() * 255).round().astype(np.uint8)])
+                tiles.append(palette[value[0].numpy().round().astype(np.uint8)])  # the ids themselves
             else:
                 tiles.append(to_uint8(value))
         height = max(t.shape[0] for t in tiles)

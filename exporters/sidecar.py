@@ -145,16 +145,16 @@ def attempt_row(
 
 
 def start_entry(item: Any) -> dict[str, Any]:
-    """Where an attempt (or clone) started: ``{"source": "task"}`` (the task's fixed scene), or a varied start,
-    ``"drawn"`` for this attempt or ``"inherited"`` from its parent, with the attempt index it was drawn for
-    (``drawn_at``: `babblegen.starts.StartSampler.draw` rebuilds it from that and the run seed) and its layout
-    (x, y, yaw per object, before settling)."""
+    """Where an attempt (or clone) started: ``{"source": "task"}`` (the task's fixed scene), or a varied start:
+    ``"drawn"`` whole for this attempt, ``"moved"`` (its parent's start with one object placed anew, for this
+    attempt) or ``"inherited"`` from its parent, with the attempt index it was drawn for (``drawn_at``) and its
+    layout (x, y, yaw per object, before settling)."""
     start = item.start
     if start is None:
         return {"source": "task"}
     drawn = start.drawn_at == getattr(item, "index", None)
     return {
-        "source": "drawn" if drawn else "inherited",
+        "source": start.origin if drawn else "inherited",
         "drawn_at": start.drawn_at,
         "layout": np.asarray(start.layout).tolist(),
     }

@@ -132,7 +132,7 @@ def one_worker_varied(tmp_path_factory):
     assert main(["generate", "--out", str(out), "--seed", "2", "--workers", "1", *VARIED]) == 0
     rows = [r for r in read_attempts(out) if r["feasible"]]
     assert len({json.dumps(r["start_poses"]) for r in rows}) >= len(rows) // 3, "many starts"
-    assert {r["start"]["source"] for r in rows} == {"drawn", "inherited"}
+    assert {r["start"]["source"] for r in rows} == {"drawn", "moved", "inherited"}
     return out
 
 
@@ -146,7 +146,7 @@ def test_a_varied_start_dataset_records_each_start_where_its_episode_begins(one_
     for r in rows:
         first = np.flatnonzero(episode == r["episode_index"])[0]
         np.testing.assert_allclose(env[first], [r["start_poses"][n] for n in names], atol=2e-6)
-        if r["start"]["source"] == "drawn":
+        if r["start"]["source"] in ("drawn", "moved"):
             assert r["start"]["drawn_at"] == r["attempt"]
         else:  # inherited from its parent, which ran from it
             parent = next(p for p in read_attempts(out) if p["attempt"] == r["parent"])

@@ -116,18 +116,23 @@ def test_noveb_children_keep_their_parents_start_unless_a_start_mutation_draws_o
     ex = make_explorer("noveb", {"children": 24, "start_mutation_prob": 0.5}, 1, LIMITS, START, starts=sampler)
     asked = run_generations(ex, 12)
     by_index = {c.index: c for c in asked}
-    inherited = drawn = 0
+    inherited = drawn = moved = 0
     for c in asked:
         assert c.start is not None
-        if c.start.drawn_at == c.index:
+        if c.start.drawn_at == c.index and c.start.origin == "drawn":  # the first generation
             drawn += 1
-            assert np.array_equal(c.start.layout, sampler.draw(c.index).layout)
+            assert c.parent is None and np.array_equal(c.start.layout, sampler.draw(c.index).layout)
+        elif c.start.drawn_at == c.index:  # a start mutation: the parent's layout with one object moved
+            moved += 1
+            parent = by_index[c.parent].start.layout
+            assert (np.abs(c.start.layout - parent).sum(axis=1) > 0).sum() == 1
+            assert np.array_equal(c.start.layout, sampler.move_one(by_index[c.parent].start, c.index).layout)
         else:
             inherited += 1
             # an inherited start was drawn for an earlier attempt of the lineage: the parent's own start
             assert c.parent is not None and c.start.drawn_at < c.index
             assert by_index[c.parent].start.drawn_at == c.start.drawn_at
-    assert drawn > 0 and inherited > 0
+    assert drawn > 0 and inherited > 0 and moved > 0
     keys = [genome_key(c.kind, c.genome, c.start) for c in asked]
     assert len(keys) == len(set(keys)), "the same genome from the same start is never attempted twice"
     clones = ex.last_clones

@@ -16,9 +16,10 @@ from typing import Any
 import numpy as np
 
 from babblegen.novelty import Archive, make_archive_policy
-from babblegen.starts import Start, StartSampler
+from babblegen.starts import NEW_START, Start, StartDraw, StartSampler
 
 __all__ = [
+    "NEW_START",
     "Batch",
     "Candidate",
     "Clone",
@@ -32,7 +33,6 @@ __all__ = [
 
 KIND_WAYPOINTS = "ee_waypoints"
 KIND_JOINTS = "joint_target"
-NEW_START = "new"  # a proposal's start: draw a new one for the attempt it becomes (`StartSampler.draw`)
 
 
 @dataclass
@@ -245,9 +245,9 @@ class ArchiveExplorer(Explorer):
         return self._copies(self._open[-1].candidates)
 
     @abstractmethod
-    def _propose(self) -> list[tuple[str, np.ndarray, int | None, Start | str | None]]:
+    def _propose(self) -> list[tuple[str, np.ndarray, int | None, Start | StartDraw | None]]:
         """The next batch's proposals as (kind, genome, parent attempt, start): with varied starts a start is a
-        parent's `Start` or ``NEW_START``, drawn for the attempt the proposal becomes; None with fixed starts."""
+        parent's `Start` or a `StartDraw`, drawn for the attempt the proposal becomes; None with fixed starts."""
 
     def _make_policy(self):
         name = getattr(self.config, "archive_policy", "most_novel")
@@ -262,7 +262,7 @@ class ArchiveExplorer(Explorer):
     def _open_batch(self, batch: list[tuple[str, np.ndarray, int | None, Any]], max_new: int | None) -> None:
         """Split proposed (kind, genome, parent, start) into candidates to evaluate and clones of tried genomes.
 
-        A ``NEW_START`` is drawn for the attempt index the proposal gets, so it is never a clone. With
+        A `StartDraw` is drawn for the attempt index the proposal gets, so it is never a clone. With
         ``reuse_clones`` (the default) a genome tried before from the same start, still in flight in an earlier
         open batch, or proposed twice in this batch, becomes a `Clone` of that attempt (resolved when its batch is
         told, which is never before the attempt it copies); otherwise every proposal is evaluated (the paper's
@@ -274,10 +274,10 @@ class ArchiveExplorer(Explorer):
         cands: list[Candidate] = []
         clones: list[Clone] = []
         for kind, genome, parent, start in batch:
-            if isinstance(start, str):  # NEW_START
+            if isinstance(start, StartDraw):
                 if max_new is not None and len(cands) >= max_new:
                     continue
-                start = self.starts.draw(self._next_index)
+                start = start.resolve(self.starts, self._next_index)
             key = genome_key(kind, genome, start)
             if reuse and key in self._outcomes:
                 clones.append(Clone(generation, kind, genome, parent, self._outcomes[key][0], start=start))

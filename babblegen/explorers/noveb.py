@@ -34,7 +34,7 @@ from babblegen.explorers.base import (
 from babblegen.genome import crossover, extend, gaussian_mutation, random_genome, waypoint_mutation
 from babblegen.novelty import ARCHIVE_POLICIES, novelty
 from babblegen.selection import binary_tournament, crowding_distance, non_dominated_sort, nsga2_select
-from babblegen.starts import Start, StartSampler
+from babblegen.starts import Start, StartDraw, StartSampler
 
 __all__ = ["NovEB", "NovEBConfig", "upgrade_stored_config"]
 
@@ -74,6 +74,9 @@ class NovEBConfig:
     # stays a clone, free) or "all_children" (copies too: the same movement from a new start)
     start_mutation_prob: float = 0.5
     start_mutation_of: str = "new_genomes"
+    # what a start mutation draws: "move_one" (the parent's layout with one object placed anew, so the rest of the
+    # scene the parent's movement met stays) or "new_layout" (every object drawn anew)
+    start_mutation: str = "move_one"
 
     def __post_init__(self) -> None:
         if int(self.population) != self.population or self.population < 2:
@@ -98,10 +101,10 @@ class NovEBConfig:
             raise ValueError(f"unknown archive_policy {self.archive_policy!r}; known: {sorted(ARCHIVE_POLICIES)}")
         if self.mutation_scope not in MUTATION_SCOPES:
             raise ValueError(f"unknown mutation_scope {self.mutation_scope!r}; known: {list(MUTATION_SCOPES)}")
+        if self.start_mutation not in START_MUTATIONS:
+            raise ValueError(f"unknown start_mutation {self.start_mutation!r}; known: {list(START_MUTATIONS)}")
         if self.start_mutation_of not in START_MUTATION_OF:
-            raise ValueError(
-                f"unknown start_mutation_of {self.start_mutation_of!r}; known: {list(START_MUTATION_OF)}"
-            )
+            raise ValueError(f"unknown start_mutation_of {self.start_mutation_of!r}; known: {list(START_MUTATION_OF)}")
         if self.tie_break not in TIE_BREAKS:
             raise ValueError(f"unknown tie_break {self.tie_break!r}; known: {list(TIE_BREAKS)}")
 
@@ -119,6 +122,7 @@ def upgrade_stored_config(config: dict[str, Any]) -> dict[str, Any]:
 
 TIE_BREAKS = ("newest", "oldest", "random", "shortest")
 START_MUTATION_OF = ("new_genomes", "all_children")
+START_MUTATIONS = ("move_one", "new_layout")
 MUTATION_SCOPES = ("genome", "waypoint")
 
 
@@ -169,7 +173,7 @@ class NovEB(ArchiveExplorer):
             return True
         return bool(self._parents) and len(self._open) <= self.config.lag
 
-    def _propose(self) -> list[tuple[str, np.ndarray, int | None, Start | str | None]]:
+    def _propose(self) -> list[tuple[str, np.ndarray, int | None, Start | StartDraw | None]]:
         if not self._parents:
             new = NEW_START if self.starts is not None else None
             proposals = [(random_genome(self.rng), None, new) for _ in range(self.config.population)]
@@ -177,7 +181,7 @@ class NovEB(ArchiveExplorer):
             proposals = self._make_children()
         return [(KIND_WAYPOINTS, g, p, start) for g, p, start in proposals]
 
-    def _make_children(self) -> list[tuple[np.ndarray, int, Start | str | None]]:
+    def _make_children(self) -> list[tuple[np.ndarray, int, Start | StartDraw | None]]:
         """Children of the current parents. A crossover child runs from the start of the parent whose first
         waypoints it keeps (the tournament's first winner), as any other child does, unless a start mutation
         draws it a new one."""
@@ -206,7 +210,7 @@ class NovEB(ArchiveExplorer):
             start = self._parent_starts[p]
             may_move = cfg.start_mutation_of == "all_children" or not np.array_equal(g, self._parents[p])
             if varied and may_move and draws[i, 3] < cfg.start_mutation_prob:
-                start = NEW_START
+                start = StartDraw(start if cfg.start_mutation == "move_one" else None)
             children.append((np.array(g, dtype=np.float64), int(self._parent_index[p]), start))
         return children
 

@@ -22,7 +22,7 @@ from babblegen.explorers.base import (
     Evaluation,
 )
 from babblegen.novelty import ARCHIVE_POLICIES, novelty
-from babblegen.starts import StartSampler
+from babblegen.starts import StartDraw, StartSampler
 
 __all__ = ["RandomBabbling", "RandomBabblingConfig", "RandomWaypoints", "RandomWaypointsConfig"]
 
@@ -76,13 +76,13 @@ class RandomBabbling(ArchiveExplorer):
             raise ValueError("joint_limits must have lower <= upper for every joint")
         self.joint_limits = limits
 
-    def _propose(self) -> list[tuple[str, np.ndarray, int | None, str | None]]:
+    def _propose(self) -> list[tuple[str, np.ndarray, int | None, StartDraw | None]]:
         lo, hi = self.joint_limits[:, 0], self.joint_limits[:, 1]
         targets = lo + (hi - lo) * self.rng.random((self.config.population, lo.shape[0]))
         return [(KIND_JOINTS, t, None, self._new_start) for t in targets]
 
     @property
-    def _new_start(self) -> str | None:
+    def _new_start(self) -> StartDraw | None:
         """Every attempt from a start of its own (drawn for its attempt index, as NovEB draws them), or None."""
         return NEW_START if self.starts is not None else None
 
@@ -130,6 +130,6 @@ class RandomWaypoints(RandomBabbling):
     name = "random_waypoints"
     config_class = RandomWaypointsConfig
 
-    def _propose(self) -> list[tuple[str, np.ndarray, int | None, str | None]]:
+    def _propose(self) -> list[tuple[str, np.ndarray, int | None, StartDraw | None]]:
         counts = self.rng.integers(1, self.config.max_waypoints + 1, size=self.config.population)
         return [(KIND_WAYPOINTS, self.rng.random((int(n), 3)), None, self._new_start) for n in counts]
