@@ -113,7 +113,8 @@ def run_generations(ex, n: int) -> list:
 def test_noveb_children_keep_their_parents_start_unless_a_start_mutation_draws_one():
     task = get_task("noveb_tabletop")
     sampler = StartSampler(task, 1)
-    ex = make_explorer("noveb", {"children": 24, "start_mutation_prob": 0.5}, 1, LIMITS, START, starts=sampler)
+    config = {"children": 24, "start_mutation_prob": 0.5, "start_mutation": "move_one"}
+    ex = make_explorer("noveb", config, 1, LIMITS, START, starts=sampler)
     asked = run_generations(ex, 12)
     by_index = {c.index: c for c in asked}
     inherited = drawn = moved = 0
@@ -146,6 +147,7 @@ def test_by_default_only_new_genomes_draw_new_starts_so_copies_stay_free_clones(
     genomes = {c.index: c.genome for c in asked}
     later = [c for c in asked if c.parent is not None]
     assert later and all(c.start.drawn_at == c.index for c in later), "every new genome drew a new start"
+    assert all(np.array_equal(c.start.layout, sampler.draw(c.index).layout) for c in later), "a whole new layout"
     assert all(not np.array_equal(c.genome, genomes[c.parent]) for c in later if c.parent in genomes)
     assert len(ex.last_clones) > 0 and all(c.start is not None for c in ex.last_clones)
     every = make_explorer(
