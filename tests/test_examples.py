@@ -46,7 +46,7 @@ def test_train_world_model(small_noveb_dataset: Path, small_random_dataset: Path
     assert any("nothing moves" in line for line in table) and any(line.startswith("| noveb") for line in table)
     assert (tmp_path / "scores.json").stat().st_size > 0
     again = run_example("train_world_model.py", *args, cwd=tmp_path)
-    assert again.stdout == proc.stdout  # seeded: the same numbers every time
+    assert [line for line in again.stdout.splitlines() if line.startswith("|")] == table  # seeded: the same numbers
 
 
 def test_view_episode(small_noveb_dataset: Path, tmp_path: Path):
