@@ -74,7 +74,7 @@ class NovEBConfig:
     # stays a clone, free) or "all_children" (copies too: the same movement from a new start); what it draws:
     # "new_layout" (every object drawn anew) or "move_one" (the parent's layout with one object placed anew).
     # Chosen by docs/start_states.md's measurements.
-    start_mutation_prob: float = 0.55
+    start_mutation_prob: float = 0.5
     start_mutation_of: str = "new_genomes"
     start_mutation: str = "new_layout"
 
