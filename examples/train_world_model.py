@@ -41,6 +41,8 @@ import torch
 from torch import nn
 
 MASKS = "observation.images.head_segmentation"
+HEAD = "observation.images.head"
+LOW = 0.12  # metres above the table top: the tool is "low" (at the objects' height) below this
 ENV = "observation.environment_state"
 BASELINE = "nothing moves"
 DISP_SCALE = 10.0  # displacements are learned in decimetres, so both losses have similar magnitudes
@@ -98,7 +100,36 @@ def mask_ids(features: dict, objects: list[str], root: Path) -> list[int]:
     return [by_name[o] for o in objects]
 
 
-def load_episodes(root: Path, steps: int, start: str, grid: int, threshold: float) -> Episodes:
+def tool_path_maps(root: Path, ds, actions: list[np.ndarray], grid: int) -> np.ndarray:
+    """(E, 2, grid, grid): where each episode's commanded tool path (the arm's forward kinematics of ``action``)
+    lies in the head camera's image, as the share of the path's points per cell, for the whole path and for the
+    part within ``LOW`` of the table top (where it can push objects). Put beside the object maps, a convolution
+    can see where the path crosses an object."""
+    from babblegen.tasks import get_robot
+    from babblegen.world.kinematics import ArmKinematics, UrdfModel
+
+    run = json.loads((root / "babblegen" / "run.json").read_text())
+    robot = get_robot(run["task"]["robot_uid"])
+    kin = ArmKinematics(UrdfModel.load(robot.urdf), robot.base_link, robot.tool_link)
+    info = ds.meta.features[HEAD]["info"]
+    k, world2cam = np.asarray(info["intrinsics"]), np.linalg.inv(np.asarray(info["cam2world"]))
+    height, width = ds.meta.features[HEAD]["shape"][:2]
+    table = run["task"]["table"]
+    table_top = table["center"][2] + table["half_extents"][2]
+    out = np.zeros((len(actions), 2, grid, grid), dtype=np.float32)
+    for e, action in enumerate(actions):
+        points = kin.tool_position(resample(action, 64))
+        cam = points @ world2cam[:3, :3].T + world2cam[:3, 3]
+        uv = cam @ k.T
+        col = np.clip((uv[:, 0] / uv[:, 2] / width * grid).astype(int), 0, grid - 1)
+        row = np.clip((uv[:, 1] / uv[:, 2] / height * grid).astype(int), 0, grid - 1)
+        low = points[:, 2] < table_top + LOW
+        np.add.at(out[e, 0], (row, col), 1.0 / len(points))
+        np.add.at(out[e, 1], (row[low], col[low]), 1.0 / len(points))
+    return out
+
+
+def load_episodes(root: Path, steps: int, start: str, grid: int, threshold: float, path: bool = False) -> Episodes:
     """Read a dataset and turn each episode into one example (see the module docstring)."""
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
@@ -120,6 +151,8 @@ def load_episodes(root: Path, steps: int, start: str, grid: int, threshold: floa
         frames = ds.hf_dataset.select(first.tolist()).select_columns([MASKS]).with_format("numpy")[MASKS]
         maps = [occupancy(np.asarray(f).reshape(f.shape[:2]), ids, grid).ravel() for f in frames]
         x = np.concatenate([x, np.stack(maps)], axis=1)
+        if path:
+            x = np.concatenate([x, tool_path_maps(root, ds, [action[r] for r in rows], grid).reshape(len(x), -1)], 1)
     elif start == "poses":
         pose = env[first]
         angle = yaw(pose[..., 3:7])
@@ -155,6 +188,33 @@ class WorldModel(nn.Module):
         return out[..., :2], out[..., 2]
 
 
+class ConvWorldModel(nn.Module):
+    """The start's object maps and the tool path's two maps (``channels`` images of ``grid`` x ``grid``, the head
+    camera's view) through a small convolutional network, beside the trajectory through a linear layer; one head
+    predicts each object's (dx, dy) and "moves" logit. Convolutions see the same geometry wherever the objects
+    stand, which a flat MLP over the maps has to learn for every place anew."""
+
+    def __init__(self, n_trajectory: int, channels: int, grid: int, n_objects: int, hidden: int = 128):
+        super().__init__()
+        self.n_trajectory, self.channels, self.grid, self.n_objects = n_trajectory, channels, grid, n_objects
+        self.conv = nn.Sequential(
+            nn.Conv2d(channels, 16, 3, padding=1), nn.ReLU(),
+            nn.Conv2d(16, 32, 3, padding=1, stride=2), nn.ReLU(),
+            nn.Conv2d(32, 32, 3, padding=1, stride=2), nn.ReLU(),
+            nn.AdaptiveAvgPool2d(4), nn.Flatten(),
+        )  # fmt: skip
+        self.trajectory = nn.Linear(n_trajectory, hidden)
+        self.head = nn.Sequential(
+            nn.ReLU(), nn.Linear(32 * 16 + hidden, hidden), nn.ReLU(), nn.Linear(hidden, 3 * n_objects)
+        )
+
+    def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        images = x[:, self.n_trajectory :].reshape(-1, self.channels, self.grid, self.grid)
+        features = torch.cat([self.conv(images), self.trajectory(x[:, : self.n_trajectory])], dim=1)
+        out = self.head(features).view(-1, self.n_objects, 3)
+        return out[..., :2], out[..., 2]
+
+
 def normalise(x: np.ndarray, mean: np.ndarray, std: np.ndarray) -> torch.Tensor:
     """Inputs standardised with the training data's statistics and clipped, so that inputs that barely varied in
     training (a map cell an object rarely covered) cannot swamp the model on other data."""
@@ -162,17 +222,23 @@ def normalise(x: np.ndarray, mean: np.ndarray, std: np.ndarray) -> torch.Tensor:
 
 
 def train(
-    data: Episodes, epochs: int, seed: int, hidden: int, batch: int = 32
-) -> tuple[WorldModel, np.ndarray, np.ndarray]:
-    """Fit a model; returns it with the input normalisation (mean, std) taken from its own training data."""
+    data: Episodes, epochs: int, seed: int, hidden: int, batch: int = 32, conv: dict | None = None
+) -> tuple[nn.Module, np.ndarray, np.ndarray]:
+    """Fit a model (with ``conv``, `ConvWorldModel` with those arguments; else the MLP); returns it with the input
+    normalisation (mean, std) taken from its own training data."""
     torch.manual_seed(seed)
     rng = np.random.default_rng(seed)
     mean, std = data.x.mean(axis=0), data.x.std(axis=0)
     std[std < 1e-6] = 1.0  # an input constant in training (every start the same) is not blown up at test time
+    if conv is not None:  # the maps stay shares of a cell, the same scale everywhere in the image
+        mean[conv["n_trajectory"] :], std[conv["n_trajectory"] :] = 0.0, 1.0
     xt = normalise(data.x, mean, std)
     dt = torch.tensor(data.disp * DISP_SCALE, dtype=torch.float32)
     mt = torch.tensor(data.moved, dtype=torch.float32)
-    model = WorldModel(xt.shape[1], dt.shape[1], hidden)
+    if conv is not None:
+        model: nn.Module = ConvWorldModel(**conv, n_objects=dt.shape[1], hidden=hidden)
+    else:
+        model = WorldModel(xt.shape[1], dt.shape[1], hidden)
     opt = torch.optim.AdamW(model.parameters(), lr=1e-3, weight_decay=1e-3)
     bce = nn.BCEWithLogitsLoss()
     for _ in range(epochs):
@@ -187,7 +253,7 @@ def train(
     return model.eval(), mean, std
 
 
-def predict(model: WorldModel, mean: np.ndarray, std: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def predict(model: nn.Module, mean: np.ndarray, std: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Predicted (dx, dy) in metres and "moves" for each row of ``x``."""
     with torch.no_grad():
         d, logit = model(normalise(x, mean, std))
@@ -207,7 +273,13 @@ def scores(pred_disp: np.ndarray, pred_moved: np.ndarray, truth: Episodes) -> di
 
 
 def experiment(
-    sources: dict[str, list[Episodes]], tests: dict[str, Episodes], n: int, epochs: int, seed: int, hidden: int
+    sources: dict[str, list[Episodes]],
+    tests: dict[str, Episodes],
+    n: int,
+    epochs: int,
+    seed: int,
+    hidden: int,
+    conv: dict | None = None,
 ) -> dict[str, dict[str, dict[str, list[float]]]]:
     """Per test set, per model (the baseline, then every source), each score's value in every repeat."""
     repeats = max(len(v) for v in sources.values())
@@ -219,7 +291,7 @@ def experiment(
         for name, parts in sources.items():
             data = parts[r % len(parts)]
             idx = np.sort(np.random.default_rng(seed + r).permutation(len(data.x))[:n])
-            model, mean, std = train(data.take(idx), epochs, seed + r, hidden)
+            model, mean, std = train(data.take(idx), epochs, seed + r, hidden, conv=conv)
             for test, truth in tests.items():
                 for key, value in scores(*predict(model, mean, std, truth.x), truth).items():
                     out[test][name][key].append(value)
@@ -269,6 +341,13 @@ def main() -> None:
     parser.add_argument("--train", type=named_dirs, action="append", required=True, metavar="NAME=DIR[,DIR...]")
     parser.add_argument("--test", type=named_dirs, action="append", required=True, metavar="NAME=DIR[,DIR...]")
     parser.add_argument("--start", choices=("masks", "poses", "none"), default="masks", help="[default: masks]")
+    parser.add_argument(
+        "--model",
+        choices=("mlp", "conv"),
+        default="mlp",
+        help="mlp: every input flattened; conv: the start's object maps and the commanded tool path's maps in the "
+        "head camera's view through a convolutional network (needs --start masks) [default: mlp]",
+    )
     parser.add_argument("--n", type=int, default=None, help="training episodes per source [default: smallest]")
     parser.add_argument("--epochs", type=int, default=300)
     parser.add_argument("--seed", type=int, default=0)
@@ -286,6 +365,8 @@ def main() -> None:
     if any(len(dirs) not in (1, repeats) for _, dirs in args.train):
         parser.error(f"every --train source needs 1 or {repeats} datasets (one per repeat)")
     test_dirs = {d.resolve() for _, dirs in args.test for d in dirs}
+    if args.model == "conv" and args.start != "masks":
+        parser.error("--model conv looks at the start's masks: use --start masks")
     if clash := sorted(str(d) for _, dirs in args.train for d in dirs if d.resolve() in test_dirs):
         parser.error(f"trained on and tested on: {clash}")
 
@@ -296,7 +377,9 @@ def main() -> None:
 
     def load(root: Path) -> Episodes:
         if root.resolve() not in cache:
-            cache[root.resolve()] = load_episodes(root, args.steps, args.start, args.grid, args.moved_threshold)
+            cache[root.resolve()] = load_episodes(
+                root, args.steps, args.start, args.grid, args.moved_threshold, path=args.model == "conv"
+            )
             print(describe(root, cache[root.resolve()]))
         return cache[root.resolve()]
 
@@ -324,7 +407,11 @@ def main() -> None:
         f"{repeats} repeats"
     )
 
-    results = experiment(sources, tests, n, args.epochs, args.seed, args.hidden)
+    conv = None
+    if args.model == "conv":
+        n_objects = len(next(iter(tests.values())).objects)
+        conv = {"n_trajectory": args.steps * 7, "channels": n_objects + 2, "grid": args.grid}
+    results = experiment(sources, tests, n, args.epochs, args.seed, args.hidden, conv)
     for test, by_model in results.items():
         truth = tests[test]
         print(

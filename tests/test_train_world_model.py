@@ -123,3 +123,27 @@ def test_genome_keys_from_the_sidecar(wm, tmp_path: Path):
     (tmp_path / "babblegen" / "attempts.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
     keys = wm.genome_keys(tmp_path, np.array([0, 1]))
     assert keys[0] == keys[1] == "noveb:[[0.1, 0.2]]"
+
+
+def test_the_convolutional_model_learns_where_the_path_crosses_an_object(wm):
+    """Synthetic scenes: one object in a random cell of an 8 x 8 map and a tool path through another random cell;
+    the object moves when they coincide. The answer is in the image alone, wherever the object stands."""
+
+    def scenes(n: int, seed: int):
+        rng = np.random.default_rng(seed)
+        grid, steps = 8, 2
+        images = np.zeros((n, 3, grid, grid))  # object map, path, low path
+        obj, path = rng.integers(0, 4, (n, 2)), rng.integers(0, 4, (n, 2))
+        path[: n // 2] = obj[: n // 2]  # half the paths cross the object
+        for i in range(n):
+            images[i, 0, obj[i, 0], obj[i, 1]] = 1.0
+            images[i, 1:, path[i, 0], path[i, 1]] = 1.0
+        hit = (obj == path).all(axis=1)
+        disp = np.zeros((n, 1, 2))
+        disp[hit, 0, 0] = 0.1
+        x = np.concatenate([rng.normal(size=(n, 7 * steps)), images.reshape(n, -1)], axis=1)
+        return wm.Episodes(x, disp, hit[:, None], np.array([f"{seed}:{i}" for i in range(n)]), ["o"])
+
+    conv = {"n_trajectory": 14, "channels": 3, "grid": 8}
+    out = wm.experiment({"a": [scenes(300, 1)]}, {"t": scenes(200, 2)}, n=300, epochs=40, seed=0, hidden=32, conv=conv)
+    assert out["t"]["a"]["f1"][0] > 0.8

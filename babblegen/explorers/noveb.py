@@ -13,6 +13,10 @@ already hold its descriptor), and keeps ``population`` survivors by NSGA-II on t
 elitist truncation, with ties broken by ``tie_break`` (by default fewer waypoints first: parsimony pressure against
 genomes that grow without adding novelty).
 
+With varied starts (`babblegen.starts`) each candidate also carries the start it runs from: the first generation
+draws one per attempt; a child keeps its parent's, unless its genome is new and a start mutation
+(``start_mutation_prob``) draws it another; a clone is the same genome from the same start.
+
 Infeasible candidates (no IK solution or no collision-free plan: descriptor ``None``) have no behaviour, so
 they get no novelty, are never archived and never survive selection; they still consume an attempt index.
 """
