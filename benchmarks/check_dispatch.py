@@ -40,7 +40,9 @@ def run(out: Path, env_change: dict[str, str | None], args: argparse.Namespace) 
     cmd = [sys.executable, "-m", "babblegen.cli", "generate", "--out", str(out), "--seed", str(args.seed)]
     cmd += ["--max-attempts", str(args.attempts), "--workers", "1", "--no-rerun", "--no-progress"]
     cmd += ["--starts", args.starts]
-    subprocess.run(cmd, env=env, check=True, stdout=subprocess.DEVNULL)
+    done = subprocess.run(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    if done.returncode != 0:
+        (out / "FAILED").write_text(f"exit {done.returncode}\n{done.stderr[-4000:]}")
 
 
 def rows(root: Path) -> list[dict]:
@@ -71,6 +73,9 @@ def main() -> None:
     ref_rows, ref_files = rows(reference), digests(reference)
     for name in names[1:]:
         other = args.out / f"{name}-{args.starts}-{args.seed}"
+        if (other / "FAILED").exists():
+            print(f"{name}: the run failed ({(other / 'FAILED').read_text().splitlines()[0]}), {len(rows(other))} rows")
+            continue
         got = rows(other)
         first = next((i for i, (a, b) in enumerate(zip(ref_rows, got, strict=False)) if a != b), None)
         same_files = digests(other) == ref_files

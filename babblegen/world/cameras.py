@@ -15,6 +15,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from babblegen.scene import TaskSpec
+from babblegen.world.exact import rigid_inverse, row_norm
 from babblegen.world.settings import CameraView
 
 
@@ -66,7 +67,7 @@ class CameraRig:
         world_to_cam[:3, :] = params["extrinsic_cv"][0].numpy()
         return {
             "intrinsics": params["intrinsic_cv"][0].numpy().astype(np.float64),
-            "cam2world": np.linalg.inv(world_to_cam),
+            "cam2world": rigid_inverse(world_to_cam),
         }
 
 
@@ -74,9 +75,9 @@ def look_at_cam2world(eye: Sequence[float], target: Sequence[float]) -> np.ndarr
     """The OpenCV cam2world (x right, y down, z forward) of a camera at ``eye`` looking at ``target`` with the
     world's z up, as ManiSkill's ``look_at`` places a camera."""
     eye, target = np.asarray(eye, dtype=np.float64), np.asarray(target, dtype=np.float64)
-    forward = (target - eye) / np.linalg.norm(target - eye)
+    forward = (target - eye) / row_norm(target - eye)
     left = np.cross([0.0, 0.0, 1.0], forward)
-    left /= np.linalg.norm(left)
+    left /= row_norm(left)
     up = np.cross(forward, left)
     out = np.eye(4)
     out[:3, 0], out[:3, 1], out[:3, 2], out[:3, 3] = -left, -up, forward, eye

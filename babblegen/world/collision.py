@@ -12,6 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from babblegen.world.exact import matvec, row_norm
 from babblegen.world.kinematics import ArmKinematics, Shape
 
 
@@ -47,19 +48,19 @@ def shape_spheres(shape: Shape) -> tuple[np.ndarray, np.ndarray]:
         cell = size / counts
         axes = [(np.arange(c) + 0.5) * s - d / 2 for c, s, d in zip(counts, cell, size, strict=True)]
         local = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
-        radii = np.full(len(local), np.linalg.norm(cell) / 2)
+        radii = np.full(len(local), row_norm(cell) / 2)
     else:
         raise ValueError(shape.kind)
-    centres = local @ shape.origin[:3, :3].T + shape.origin[:3, 3]
+    centres = matvec(shape.origin[:3, :3], local) + shape.origin[:3, 3]
     return centres, radii
 
 
 def box_distance(points: np.ndarray, box: Box) -> np.ndarray:
     """Distance from points (..., 3) to a box (0 inside)."""
     rot = np.asarray(box.rotation)
-    local = (points - np.asarray(box.center)) @ rot
+    local = matvec(rot.T, points - np.asarray(box.center))  # (points - centre) @ rot, summed in order
     outside = np.maximum(np.abs(local) - np.asarray(box.half_extents), 0.0)
-    return np.linalg.norm(outside, axis=-1)
+    return row_norm(outside)
 
 
 class SphereCollisionModel:
@@ -103,7 +104,7 @@ class SphereCollisionModel:
     def sphere_centres(self, q: np.ndarray) -> np.ndarray:
         """World centres of all spheres, shape (B, n_spheres, 3)."""
         tf = self.kin.link_transforms(q)[:, self.link_of_sphere]
-        return np.einsum("bsij,sj->bsi", tf[..., :3, :3], self.local) + tf[..., :3, 3]
+        return matvec(tf[..., :3, :3], self.local) + tf[..., :3, 3]
 
     def collisions(self, q: np.ndarray) -> dict[str, np.ndarray]:
         """Per obstacle (and 'self'), whether each configuration of the batch collides with it."""
@@ -112,7 +113,7 @@ class SphereCollisionModel:
         for box in self.obstacles:
             d = box_distance(pts[:, self.world_mask], box)
             out[box.name] = (d < self.radii[self.world_mask] + self.margin).any(axis=1)
-        dist = np.linalg.norm(pts[:, self.pair_a] - pts[:, self.pair_b], axis=-1)
+        dist = row_norm(pts[:, self.pair_a] - pts[:, self.pair_b])
         out["self"] = (dist < self.pair_reach).any(axis=1)
         return out
 

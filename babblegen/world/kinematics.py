@@ -13,6 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
+from babblegen.world.exact import inv3, matmul, matvec, row_norm
+
 
 def _vec(text: str | None, default: tuple[float, ...]) -> np.ndarray:
     return np.array([float(v) for v in text.split()] if text else default, dtype=np.float64)
@@ -42,7 +44,7 @@ def axis_rotations(axis: np.ndarray, angles: np.ndarray) -> np.ndarray:
     """Rotations about a unit axis by a batch of angles (Rodrigues), shape (B, 3, 3)."""
     k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
     s, c = np.sin(angles)[:, None, None], np.cos(angles)[:, None, None]
-    return np.eye(3) + s * k + (1 - c) * (k @ k)
+    return np.eye(3) + s * k + (1 - c) * matmul(k, k)
 
 
 @dataclass
@@ -109,7 +111,7 @@ class UrdfModel:
                     _vec(org.get("xyz") if org is not None else None, (0, 0, 0)),
                     _vec(org.get("rpy") if org is not None else None, (0, 0, 0)),
                 ),
-                axis=axis / np.linalg.norm(axis),
+                axis=axis / row_norm(axis),
                 lower=float(lim.get("lower", -np.pi)) if lim is not None else 0.0,
                 upper=float(lim.get("upper", np.pi)) if lim is not None else 0.0,
             )
@@ -197,9 +199,9 @@ class ArmKinematics:
         qi = 0
         for li, (o_pos, o_rot, axis) in enumerate(self._steps, start=1):
             if o_pos is not None:
-                pos = pos + rot @ o_pos
+                pos = pos + matvec(rot, o_pos)
             if o_rot is not None:
-                rot = rot @ o_rot
+                rot = matmul(rot, o_rot)
             if axis is not None:
                 angle = q[:, qi]
                 qi += 1
@@ -211,7 +213,7 @@ class ArmKinematics:
                     rot[:, :, i] = c * ci + s * cj
                     rot[:, :, j] = c * cj - s * ci
                 else:
-                    rot = rot @ axis_rotations(axis, angle)
+                    rot = matmul(rot, axis_rotations(axis, angle))
             rots[:, li], poss[:, li] = rot, pos
         return rots, poss
 
@@ -224,7 +226,7 @@ class ArmKinematics:
         rot, pos = self.link_frames(q)
         tool = pos[:, -1]
         idx = self._active_link_index
-        axes_w = np.einsum("bjkl,jl->bjk", rot[:, idx], self._active_axes)
+        axes_w = matvec(rot[:, idx], self._active_axes)
         cols = np.cross(axes_w, tool[:, None, :] - pos[:, idx])
         return cols.transpose(0, 2, 1), tool
 
@@ -253,19 +255,20 @@ class ArmKinematics:
         for _ in range(max_iters):
             jac, tool = self.jacobian(q)
             e = target - tool
-            err = np.linalg.norm(e, axis=1)
+            err = row_norm(e)
             active = err > tol
             if not active.all():
                 break
-            jjt = jac @ jac.transpose(0, 2, 1) + damping**2 * eye3
-            jpinv = jac.transpose(0, 2, 1) @ np.linalg.inv(jjt)
-            step = (jpinv @ e[:, :, None])[:, :, 0]
-            null = eye_n - jpinv @ jac
-            step += bias_gain * (null @ (bias - q)[:, :, None])[:, :, 0]
+            # BLAS-free products (babblegen.world.exact): the same solution on any CPU
+            jac_t = jac.transpose(0, 2, 1)
+            jpinv = matmul(jac_t, inv3(matmul(jac, jac_t) + damping**2 * eye3))
+            step = matvec(jpinv, e)
+            null = eye_n - matmul(jpinv, jac)
+            step += bias_gain * matvec(null, bias - q)
             # cap the step to keep the linearisation honest
-            norm = np.linalg.norm(step, axis=1, keepdims=True)
+            norm = row_norm(step)[:, None]
             step *= np.minimum(1.0, 0.5 / np.maximum(norm, 1e-12))
             q = np.where(active[:, None], np.clip(q + step, self.lower, self.upper), q)
         else:
-            err = np.linalg.norm(target - self.tool_position(q), axis=1)
+            err = row_norm(target - self.tool_position(q))
         return q, err

@@ -21,6 +21,7 @@ from babblegen.scene import TaskSpec
 from babblegen.starts import layout_poses
 from babblegen.world.cameras import CameraRig
 from babblegen.world.collision import Box, SphereCollisionModel
+from babblegen.world.exact import row_norm
 from babblegen.world.kinematics import ArmKinematics, UrdfModel
 from babblegen.world.planner import JointPlanner
 from babblegen.world.rollout import Command, Frames, Rollout
@@ -78,7 +79,7 @@ class World:
         self.reach = self._max_reach()
         pos = self.kin.link_frames(np.zeros(self.kin.dof))[1][0]
         self._pan_xy, self._shoulder_z = pos[1, :2], pos[2, 2]
-        self._lift_radius = float(np.linalg.norm(pos[2, :2] - pos[1, :2]))
+        self._lift_radius = float(row_norm(pos[2, :2] - pos[1, :2]))
         self._bank_q, self._bank_tool = self._seed_bank(400)
 
         self.object_names = task.object_names
@@ -143,7 +144,7 @@ class World:
         """Distance from the shoulder-lift axis to the tool with the arm stretched out."""
         stretched = np.clip(np.zeros(self.kin.dof), self.kin.lower, self.kin.upper)
         _, pos = self.kin.link_frames(stretched)
-        return float(np.linalg.norm(pos[0, -1] - pos[0, 2]))
+        return float(row_norm(pos[0, -1] - pos[0, 2]))
 
     @property
     def start_norm(self) -> np.ndarray:
@@ -154,7 +155,7 @@ class World:
         """Distance from points (..., 3) to the nearest place the shoulder-lift joint can be (a circle
         around the pan axis): beyond `reach`, no configuration gets the tool there."""
         points = np.asarray(points)
-        horizontal = np.linalg.norm(points[..., :2] - self._pan_xy, axis=-1)
+        horizontal = row_norm(points[..., :2] - self._pan_xy)
         return np.hypot(horizontal - self._lift_radius, points[..., 2] - self._shoulder_z)
 
     def _seed_bank(self, n: int) -> tuple[np.ndarray, np.ndarray]:
@@ -176,7 +177,7 @@ class World:
             return None, "out_of_reach"
         s = self.settings
         rng = np.random.default_rng(np.frombuffer(np.round(target, 9).tobytes(), dtype=np.uint32))
-        near = np.argsort(np.linalg.norm(self._bank_tool - target, axis=1))[: max(s.ik_seeds - 2, 1)]
+        near = np.argsort(row_norm(self._bank_tool - target), kind="stable")[: max(s.ik_seeds - 2, 1)]
         # Stages: from where the arm is (smallest motion), then from stored configurations whose tool is near
         # the target, then random restarts. IK stops at the first seed that converges, so order matters.
         stages = [np.vstack([seed_q, self.home]), self._bank_q[near]]
@@ -237,8 +238,7 @@ class World:
     def _at_rest(self) -> bool:
         v = self.settings.rest_speed
         return all(
-            np.linalg.norm(b.linear_velocity) < v and np.linalg.norm(b.angular_velocity) < 10 * v
-            for b in self._object_bodies
+            row_norm(b.linear_velocity) < v and row_norm(b.angular_velocity) < 10 * v for b in self._object_bodies
         )
 
     def warm_up(self) -> None:
@@ -431,7 +431,7 @@ class World:
             planner=planner,
             frames=frames,
             touched=touched_any,
-            displacement=np.linalg.norm(final[:, :3] - start[:, :3], axis=1),
+            displacement=row_norm(final[:, :3] - start[:, :3]),
             final_poses=final,
             start_poses=start,
             timings=timings,
