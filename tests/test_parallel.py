@@ -123,6 +123,21 @@ def kill_then_resume(out, args: list[str]) -> None:
     assert main(["generate", "--out", str(out), "--resume", "--workers", "2", "--no-progress"]) == 0
 
 
+def test_numpy_without_its_avx512_code_writes_the_same_dataset(one_worker, tmp_path):
+    """numpy picks SIMD code by CPU; the world's arithmetic is elementwise (babblegen.world.exact), so a machine
+    without AVX-512 records the same values. (OpenBLAS's own kernel choice is checked by hand,
+    benchmarks/check_dispatch.py: tests leave OPENBLAS_CORETYPE as the machine sets it.)"""
+    import subprocess
+    import sys
+
+    out = tmp_path / "numpy-no-avx512"
+    no_avx512 = "AVX512F AVX512CD AVX512_SKX AVX512_CLX AVX512_CNL AVX512_ICL AVX512_SPR"  # as check_dispatch.py
+    env = {**os.environ, "NPY_DISABLE_CPU_FEATURES": no_avx512}
+    cmd = [sys.executable, "-m", "babblegen.cli", "generate", "--out", str(out), "--seed", "2", "--workers", "1"]
+    subprocess.run([*cmd, *ARGS], env=env, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    assert_same_dataset(one_worker, out)
+
+
 VARIED = [*ARGS, "--starts", "varied"]
 
 
