@@ -26,6 +26,8 @@ from babblegen.world.world import WorldSettings
 ARGS = ["--max-attempts", "40", "--checkpoint-every", "1", "--width", "64", "--height", "64", "--no-progress"]
 ARGS += ["--children", "8", "--lag", "2"]
 SETTINGS = WorldSettings(camera_width=64, camera_height=64)
+# numpy without its AVX-512 code, as on a CPU without it (benchmarks/check_dispatch.py)
+NO_AVX512 = "AVX512F AVX512CD AVX512_SKX AVX512_CLX AVX512_CNL AVX512_ICL AVX512_SPR"
 
 
 def comparable(rows: list[dict]) -> list[dict]:
@@ -131,8 +133,7 @@ def test_numpy_without_its_avx512_code_writes_the_same_dataset(one_worker, tmp_p
     import sys
 
     out = tmp_path / "numpy-no-avx512"
-    no_avx512 = "AVX512F AVX512CD AVX512_SKX AVX512_CLX AVX512_CNL AVX512_ICL AVX512_SPR"  # as check_dispatch.py
-    env = {**os.environ, "NPY_DISABLE_CPU_FEATURES": no_avx512}
+    env = {**os.environ, "NPY_DISABLE_CPU_FEATURES": NO_AVX512}  # as benchmarks/check_dispatch.py
     cmd = [sys.executable, "-m", "babblegen.cli", "generate", "--out", str(out), "--seed", "2", "--workers", "1"]
     subprocess.run([*cmd, *ARGS], env=env, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     assert_same_dataset(one_worker, out)
@@ -199,15 +200,22 @@ def test_ray_auto_starts_a_local_cluster_and_writes_the_same_dataset(one_worker,
 @pytest.mark.parametrize("starts", ["fixed", "varied"])
 def test_two_ray_nodes_write_the_same_dataset_as_one_worker(one_worker, one_worker_varied, tmp_path, starts):
     """A real multi-node cluster on this machine: two Ray nodes with one CPU each, so the two rollout actors
-    (one CPU each) must run on different nodes."""
+    (one CPU each) must run on different nodes; the second node's processes run numpy without its AVX-512 code,
+    as a node with another CPU would."""
     ray = pytest.importorskip("ray")
     from ray.cluster_utils import Cluster
+    from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
 
     cluster = Cluster(initialize_head=True, head_node_args={"num_cpus": 1, "include_dashboard": False})
     try:
-        cluster.add_node(num_cpus=1)
+        node = cluster.add_node(num_cpus=1, env_vars={"NPY_DISABLE_CPU_FEATURES": NO_AVX512})
         cluster.wait_for_nodes()
         address = cluster.address
+        ray.init(address=address)
+        on_node = NodeAffinitySchedulingStrategy(node.node_id, soft=False)
+        setting = ray.remote(lambda: os.environ.get("NPY_DISABLE_CPU_FEATURES"))
+        assert ray.get(setting.options(scheduling_strategy=on_node, num_cpus=1).remote()) == NO_AVX512
+        ray.shutdown()
         out = tmp_path / "two-nodes"
         args = VARIED if starts == "varied" else ARGS
         argv = ["generate", "--out", str(out), "--seed", "2", "--ray", address, "--workers", "2", *args]
