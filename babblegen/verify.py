@@ -17,6 +17,7 @@ import numpy as np
 
 from babblegen.config import ConfigError, RunConfig
 from babblegen.exporters.sidecar import ATTEMPTS, read_attempts, read_run_info, sidecar_dir
+from babblegen.world.rollout import Command
 
 # dataset column -> the recorded frames' field it must equal
 COLUMNS = {
@@ -60,7 +61,6 @@ def verify(root: Path, episodes: int, echo=print) -> int:
     from babblegen.assembly import build_descriptor
     from babblegen.evaluation import seeded_rollout, warm_up
     from babblegen.exporters.lerobot import load_dataset
-    from babblegen.run import command_for
     from babblegen.tasks import get_task
     from babblegen.world.world import World
 
@@ -80,9 +80,8 @@ def verify(root: Path, episodes: int, echo=print) -> int:
         for done, row in enumerate(rows, start=1):
             frames = np.flatnonzero(episode_of == row["episode_index"])
             recorded = {c: np.asarray(table[c], dtype=np.float32)[frames].reshape(len(frames), -1) for c in COLUMNS}
-            candidate = _Candidate(row)
             rollout = seeded_rollout(
-                world, command_for(candidate), config.seed, row["attempt"], defer_render=True, describe=descriptor
+                world, command_of(row), config.seed, row["attempt"], defer_render=True, describe=descriptor
             )
             difference = first_difference(row, recorded, rollout, descriptor)
             if difference is not None:
@@ -94,15 +93,12 @@ def verify(root: Path, episodes: int, echo=print) -> int:
     return 0
 
 
-class _Candidate:
-    """An attempt as `babblegen.run.command_for` reads it, rebuilt from its sidecar row."""
-
-    def __init__(self, row: dict):
-        from babblegen.starts import Start
-
-        self.kind, self.genome = row["kind"], np.asarray(row["genome"], dtype=np.float64)
-        start = row.get("start") or {}
-        self.start = Start.from_dict(start) if "layout" in start else None
+def command_of(row: dict) -> Command:
+    """The command an attempt ran, rebuilt from its sidecar row: its genome, and its varied start's layout."""
+    layout = (row.get("start") or {}).get("layout")
+    return Command(
+        row["kind"], np.asarray(row["genome"], dtype=np.float64), None if layout is None else np.asarray(layout)
+    )
 
 
 def register(sub) -> None:
