@@ -10,7 +10,15 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["as_genome", "crossover", "extend", "gaussian_mutation", "random_genome", "waypoint_mutation"]
+__all__ = [
+    "as_genome",
+    "crossover",
+    "extend",
+    "gaussian_mutation",
+    "random_genome",
+    "remove_waypoint",
+    "waypoint_mutation",
+]
 
 
 def as_genome(genome: np.ndarray) -> np.ndarray:
@@ -63,6 +71,18 @@ def extend(genome: np.ndarray, start: np.ndarray, rng: np.random.Generator) -> n
     i = int(rng.integers(g.shape[0]))
     mid = 0.5 * (points[i] + points[i + 1])
     return np.insert(g, i, mid, axis=0)
+
+
+def remove_waypoint(genome: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """Delete one waypoint drawn uniformly; a one-waypoint genome is returned unchanged (as a copy).
+
+    The inverse of :func:`extend`: with both, a genome's length can shrink as well as grow. Deleting the last row
+    makes the waypoint before it the final point.
+    """
+    g = as_genome(genome)
+    if g.shape[0] == 1:
+        return g.copy()
+    return np.delete(g, int(rng.integers(g.shape[0])), axis=0)
 
 
 def crossover(a: np.ndarray, b: np.ndarray, rng: np.random.Generator) -> np.ndarray:

@@ -23,12 +23,19 @@ from __future__ import annotations
 
 import argparse
 import json
+import resource
 import time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+
+def cpu_seconds() -> float:
+    """User + system CPU seconds of this process so far, all its threads."""
+    usage = resource.getrusage(resource.RUSAGE_SELF)
+    return usage.ru_utime + usage.ru_stime
 
 
 def run_one(explorer_name: str, seed: int, attempts: int, out: str, options: dict[str, Any]) -> dict:
@@ -55,7 +62,7 @@ def run_one(explorer_name: str, seed: int, attempts: int, out: str, options: dic
     names = task.object_names
     label = f"{options.get('label', explorer_name)}-{options['starts']}-{seed}"
     path = Path(out) / f"{label}.jsonl"
-    t0, clones, available = time.perf_counter(), 0, []
+    t0, cpu0, clones, available = time.perf_counter(), cpu_seconds(), 0, []
     # the run loop's order of asks and tells (`Run._loop`), so that this explores exactly as `generate` does
     open_batches = deque(ask_while_possible(ex, attempts, cfg.noveb.generations))
     with open(path, "w") as f:
@@ -129,8 +136,18 @@ def run_one(explorer_name: str, seed: int, attempts: int, out: str, options: dic
             np.mean([len(r["genome"]) for r in executed if r["kind"] == "ee_waypoints"] or [1])
         ),
         "seconds": time.perf_counter() - t0,
+        # CPU seconds of this process (rendering threads included): comparable when jobs share the cores
+        "cpu_seconds": cpu_seconds() - cpu0,
         **diversity(rows, names),
     }
+
+
+def _value(text: str) -> Any:
+    """A --set/--world value: a JSON literal (number, true, false, null), else the string."""
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError:
+        return text
 
 
 def main() -> None:
@@ -149,6 +166,13 @@ def main() -> None:
     p.add_argument("--crop", default=None, help="x0,y0,x1,y1 fractions, or 'none' for the full frame")
     p.add_argument("--camera", type=int, default=None, help="square camera resolution in pixels")
     p.add_argument("--literal", action="store_true", help="the paper's literal procedure (clones re-simulated)")
+    p.add_argument(
+        "--world",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="a world setting, e.g. max_joint_speed=2.1 (repeatable)",
+    )
     p.add_argument(
         "--set",
         action="append",
@@ -170,7 +194,10 @@ def main() -> None:
         options["explorer"] = {"reuse_clones": False, "tie_break": "oldest", "archive_policy": "most_novel"}
     for item in args.set:
         key, _, value = item.partition("=")
-        options["explorer"][key] = json.loads(value) if value in ("true", "false") or value[:1].isdigit() else value
+        options["explorer"][key] = _value(value)
+    for item in args.world:
+        key, _, value = item.partition("=")
+        options["world"][key] = _value(value)
     Path(args.out).mkdir(parents=True, exist_ok=True)
     jobs = [(e, s) for s in args.seeds for e in args.explorers]
     with ProcessPoolExecutor(args.jobs) as pool:
@@ -201,6 +228,8 @@ def main() -> None:
         "available_mean",
         "available_p10",
         "waypoints_per_episode",
+        "frames_per_episode",
+        "cpu_seconds",
     )
     print(f"{'run':>24} " + " ".join(f"{k[:12]:>12}" for k in keys))
     for r in results:

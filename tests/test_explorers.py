@@ -379,6 +379,37 @@ def test_max_waypoints_stops_extension_and_is_off_by_default():
     assert max(lengths["free"]) > 3
 
 
+def test_remove_prob_shortens_genomes_and_is_off_in_the_papers_form():
+    assert NovEBConfig(remove_prob=0.0).remove_prob == 0.0
+    # grow first, then only remove: lengths fall back towards one waypoint
+    ex = make_noveb(mutation_prob=0.0, extend_prob=1.0, tie_break="newest")
+    for _ in range(6):
+        tell_in_order(ex, ex.ask())
+    assert max(len(g) for g in ex._parents) >= 3
+    ex.config = NovEBConfig(**{**ex.config.__dict__, "extend_prob": 0.0, "remove_prob": 1.0})
+    cands = ex.ask()
+    # every child of a parent with n > 1 waypoints has n - 1 (the parent's genome minus one row)
+    for c in cands:
+        parent = ex._parents[[int(i) for i in ex._parent_index].index(c.parent)]
+        assert len(c.genome) == max(len(parent) - 1, 1)
+
+
+def test_remove_prob_off_draws_what_the_paper_draws():
+    """With remove_prob = 0 the children are the ones drawn before the option existed: same stream, same genomes."""
+    a, b = make_noveb(extend_prob=0.3), make_noveb(extend_prob=0.3, remove_prob=0.0)
+    for _ in range(5):
+        ca, cb = a.ask(), b.ask()
+        assert all(np.array_equal(x.genome, y.genome) for x, y in zip(ca, cb, strict=True))
+        tell_in_order(a, ca)
+        tell_in_order(b, cb)
+
+
+@pytest.mark.parametrize("bad", [{"extend_prob": 0.6, "remove_prob": 0.5}, {"max_waypoints": 0}])
+def test_bad_length_settings_are_refused(bad):
+    with pytest.raises(ValueError):
+        NovEBConfig(**bad)
+
+
 def tell_in_order(explorer, batch):
     return explorer.tell(batch, [fake_descriptor(c.genome) for c in batch])
 

@@ -1,7 +1,17 @@
+from collections import Counter
+
 import numpy as np
 import pytest
 
-from babblegen.genome import as_genome, crossover, extend, gaussian_mutation, random_genome, waypoint_mutation
+from babblegen.genome import (
+    as_genome,
+    crossover,
+    extend,
+    gaussian_mutation,
+    random_genome,
+    remove_waypoint,
+    waypoint_mutation,
+)
 
 
 class FixedRng:
@@ -136,3 +146,25 @@ def test_waypoint_mutation_moves_one_waypoint_by_the_same_noise_as_gaussian_muta
     b = gaussian_mutation(one, 0.3, np.random.default_rng(3))
     np.testing.assert_array_equal(a, b)  # one waypoint: the paper's operator, draw for draw
     assert np.array_equal(genome, np.arange(15, dtype=float).reshape(5, 3)), "the input is not modified"
+
+
+def test_remove_waypoint_deletes_one_row_drawn_uniformly():
+    g = np.arange(12, dtype=np.float64).reshape(4, 3)
+    removed = Counter()
+    rng = np.random.default_rng(0)
+    for _ in range(4000):
+        child = remove_waypoint(g, rng)
+        assert child.shape == (3, 3)
+        # the child is g without exactly one of its rows, in the same order
+        gone = [i for i in range(4) if np.array_equal(np.delete(g, i, axis=0), child)]
+        assert len(gone) == 1
+        removed[gone[0]] += 1
+    assert set(removed) == {0, 1, 2, 3}
+    assert all(abs(n / 4000 - 0.25) < 0.03 for n in removed.values())
+    assert g.shape == (4, 3)  # input untouched
+
+
+def test_remove_waypoint_keeps_a_one_waypoint_genome():
+    g = np.array([[0.1, 0.2, 0.3]])
+    child = remove_waypoint(g, np.random.default_rng(0))
+    assert np.array_equal(child, g) and child is not g

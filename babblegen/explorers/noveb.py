@@ -1,17 +1,17 @@
 """Novelty-driven Evolutionary Babbling (Maestre et al.): novelty search with NSGA-II survival.
 
-Generation 0 asks ``population`` random genomes (one final point uniform in [0, 1]^3). Every later generation
-proposes ``children`` children of the current parents (those selected after the generation ``lag + 1`` before it,
-so that ``lag + 1`` generations can be evaluated at once): binary tournament on (rank, crowding), optional
-crossover, Gaussian mutation with probability ``mutation_prob`` (of one waypoint, or of all with ``mutation_scope =
-"genome"``) and waypoint extension with probability ``extend_prob``. A child that is neither mutated nor extended
-is a copy of its parent. The simulation is deterministic, so such a clone (any genome tried before, or still being
-tried) reuses that outcome instead of being simulated again (``reuse_clones``; off, it is evaluated again as in the
-paper's noisy simulator). ``tell`` recomputes the novelty of parents ∪ feasible children (clones included) against
-that union plus the archive, archives the most novel newly evaluated child (by default only if the archive does not
-already hold its descriptor), and keeps ``population`` survivors by NSGA-II on the single objective novelty, i.e.
-elitist truncation, with ties broken by ``tie_break`` (by default fewer waypoints first: parsimony pressure against
-genomes that grow without adding novelty).
+Generation 0 asks ``population`` random genomes (one final point uniform in [0, 1]^3). Every later generation proposes
+``children`` children of the current parents (those selected after the generation ``lag + 1`` before it, so that ``lag +
+1`` generations can be evaluated at once): binary tournament on (rank, crowding), optional crossover, Gaussian mutation
+with probability ``mutation_prob`` (of one waypoint, or of all with ``mutation_scope = "genome"``), and waypoint
+extension with probability ``extend_prob`` (at most ``max_waypoints``) or removal with probability ``remove_prob``. A
+child that is neither mutated nor extended nor shortened is a copy of its parent. The simulation is deterministic, so
+such a clone (any genome tried before, or still being tried) reuses that outcome instead of being simulated again
+(``reuse_clones``; off, it is evaluated again as in the paper's noisy simulator). ``tell`` recomputes the novelty of
+parents ∪ feasible children (clones included) against that union plus the archive, archives the most novel newly
+evaluated child (by default only if the archive does not already hold its descriptor), and keeps ``population``
+survivors by NSGA-II on the single objective novelty, i.e. elitist truncation, with ties broken by ``tie_break`` (by
+default fewer waypoints first: parsimony pressure against genomes that grow without adding novelty).
 
 With varied starts (`babblegen.starts`) each candidate also carries the start it runs from: the first generation
 draws one per attempt; a child keeps its parent's, unless its genome is new and a start mutation
@@ -35,7 +35,14 @@ from babblegen.explorers.base import (
     Candidate,
     Evaluation,
 )
-from babblegen.genome import crossover, extend, gaussian_mutation, random_genome, waypoint_mutation
+from babblegen.genome import (
+    crossover,
+    extend,
+    gaussian_mutation,
+    random_genome,
+    remove_waypoint,
+    waypoint_mutation,
+)
 from babblegen.novelty import ARCHIVE_POLICIES, novelty
 from babblegen.selection import binary_tournament, crowding_distance, non_dominated_sort, nsga2_select
 from babblegen.starts import Start, StartDraw, StartSampler
@@ -66,6 +73,7 @@ class NovEBConfig:
     mutation_prob: float = 0.3
     sigma: float = 0.3
     extend_prob: float = 0.05
+    remove_prob: float = 0.0  # remove-waypoint probability (0: the paper, whose genomes only grow)
     crossover_prob: float = 0.0
     archive_per_generation: int = 1
     archive_policy: str = field(default="most_novel_unseen")
@@ -93,10 +101,14 @@ class NovEBConfig:
             raise ValueError(f"generations must be an integer >= 1, got {self.generations}")
         if int(self.k) != self.k or self.k < 1:
             raise ValueError(f"k must be an integer >= 1, got {self.k}")
-        for name in ("mutation_prob", "extend_prob", "crossover_prob", "start_mutation_prob"):
+        for name in ("mutation_prob", "extend_prob", "remove_prob", "crossover_prob", "start_mutation_prob"):
             p = getattr(self, name)
             if not 0.0 <= p <= 1.0:
                 raise ValueError(f"{name} must be a probability in [0, 1], got {p}")
+        if self.extend_prob + self.remove_prob > 1.0:
+            raise ValueError(f"extend_prob + remove_prob must be <= 1, got {self.extend_prob + self.remove_prob}")
+        if self.max_waypoints is not None and (int(self.max_waypoints) != self.max_waypoints or self.max_waypoints < 1):
+            raise ValueError(f"max_waypoints must be an integer >= 1 (or absent), got {self.max_waypoints}")
         if not self.sigma >= 0.0:
             raise ValueError(f"sigma must be >= 0, got {self.sigma}")
         if int(self.archive_per_generation) != self.archive_per_generation or self.archive_per_generation < 0:
@@ -209,8 +221,12 @@ class NovEB(ArchiveExplorer):
             if draws[i, 1] < cfg.mutation_prob:
                 mutate = waypoint_mutation if cfg.mutation_scope == "waypoint" else gaussian_mutation
                 g = mutate(g, cfg.sigma, self.rng)
-            if draws[i, 2] < cfg.extend_prob and (cfg.max_waypoints is None or len(g) < cfg.max_waypoints):
-                g = extend(g, self.start_norm, self.rng)
+            # one draw decides extension or removal (with removal off, the paper's draws exactly)
+            if draws[i, 2] < cfg.extend_prob:
+                if cfg.max_waypoints is None or len(g) < cfg.max_waypoints:
+                    g = extend(g, self.start_norm, self.rng)
+            elif draws[i, 2] < cfg.extend_prob + cfg.remove_prob and len(g) > 1:
+                g = remove_waypoint(g, self.rng)
             start = self._parent_starts[p]
             may_move = cfg.start_mutation_of == "all_children" or not np.array_equal(g, self._parents[p])
             if varied and may_move and draws[i, 3] < cfg.start_mutation_prob:
