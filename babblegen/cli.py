@@ -8,7 +8,7 @@ import dataclasses
 import sys
 from pathlib import Path
 
-from babblegen.config import VIDEO_CODECS, ConfigError, RunConfig, default_workers, load_toml, merge
+from babblegen.config import RERUN_FRAMES, VIDEO_CODECS, ConfigError, RunConfig, default_workers, load_toml, merge
 from babblegen.explorers.noveb import NovEBConfig
 from babblegen.world.settings import (
     CAMERA_PRESETS,
@@ -183,6 +183,14 @@ def build_parser() -> argparse.ArgumentParser:
         help="write Rerun recordings to DIR/babblegen/rerun/ [default: on]",
     )
     g.add_argument(
+        "--rerun-frames",
+        choices=RERUN_FRAMES,
+        default=None,
+        help="what the recordings log of each episode: 'ends', its first and last frame (every view) and the paths "
+        "of the movement (babblegen view plays any episode frame by frame from the dataset), or 'all' its frames "
+        "[default: ends]",
+    )
+    g.add_argument(
         "--video-codec",
         choices=VIDEO_CODECS,
         default=None,
@@ -209,6 +217,7 @@ def _overrides(args: argparse.Namespace) -> dict:
         "workers": args.workers,
         "ray": args.ray,
         "rerun": args.rerun,
+        "rerun_frames": args.rerun_frames,
         "video_codec": args.video_codec,
         "noveb": {
             "generations": args.generations,

@@ -18,6 +18,7 @@ from babblegen.world.settings import LEGACY_CAMERAS, WorldSettings
 # default: on frames like 128x128 it costs about a third of the CPU time of LeRobot's own default, SVT-AV1, for
 # about the same fidelity and size (benchmarks/bench_codecs.py), and every LeRobot video backend decodes it.
 VIDEO_CODECS = ("h264", "libsvtav1")
+RERUN_FRAMES = ("ends", "all")  # exporters.rerun.columns.FRAME_MODES
 
 
 class ConfigError(ValueError):
@@ -39,6 +40,9 @@ class RunConfig:
     workers: int = field(default_factory=lambda: default_workers())  # rollout processes: one per core
     ray: str | None = None  # None, "auto" or a cluster address
     rerun: bool = True  # write Rerun recordings beside the dataset (DIR/babblegen/rerun/)
+    # what the recordings log of each episode: "ends" (its first and last frame, every view, and the paths of the
+    # movement; `babblegen view` plays any episode frame by frame from the dataset) or "all" (every frame)
+    rerun_frames: str = "ends"
     video_codec: str = "h264"  # the head camera's video: "h264" or "libsvtav1" (LeRobot's default)
     noveb: NovEBConfig = field(default_factory=NovEBConfig)
     world: WorldSettings = field(default_factory=WorldSettings)
@@ -117,11 +121,13 @@ class RunConfig:
             raise ConfigError(f"checkpoint_every must be at least 1, got {self.checkpoint_every}")
         if self.workers < 1:
             raise ConfigError(f"workers must be at least 1, got {self.workers}")
+        if self.rerun_frames not in RERUN_FRAMES:
+            raise ConfigError(f"unknown rerun_frames {self.rerun_frames!r}; choose one of: {', '.join(RERUN_FRAMES)}")
         if self.video_codec not in VIDEO_CODECS:
             raise ConfigError(f"unknown video codec {self.video_codec!r}; choose one of: {', '.join(VIDEO_CODECS)}")
 
 
-RESUME_MAY_CHANGE = ("max_attempts", "generations", "workers", "ray", "rerun", "checkpoint_every")
+RESUME_MAY_CHANGE = ("max_attempts", "generations", "workers", "ray", "rerun", "rerun_frames", "checkpoint_every")
 
 
 def resumed_config(stored: dict[str, Any], overrides: dict[str, Any] | None = None) -> RunConfig:
@@ -130,6 +136,7 @@ def resumed_config(stored: dict[str, Any], overrides: dict[str, Any] | None = No
     of setting names from any section. Changing anything that would change the results is refused."""
     data = json.loads(json.dumps(stored))  # a deep copy
     data.setdefault("video_codec", "libsvtav1")  # runs stored before the setting existed recorded AV1
+    data.setdefault("rerun_frames", "all")  # runs stored before the setting existed recorded every frame
     data["noveb"] = upgrade_stored_config(data.get("noveb", {}))
     data["world"].setdefault("cameras", [dict(c) for c in LEGACY_CAMERAS])  # stored before cameras were settings
     for key, value in (overrides or {}).items():

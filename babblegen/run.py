@@ -203,7 +203,7 @@ class Run:
         if cfg.rerun:
             from babblegen.exporters.rerun import JpegFrames
 
-            steps["rerun"] = JpegFrames()
+            steps["rerun"] = JpegFrames(frames=cfg.rerun_frames)
         return Preparers(steps)
 
     def _sinks(self, repo_id: str) -> list[tuple[str, Any]]:
@@ -225,7 +225,7 @@ class Run:
             def rerun(state: dict | None) -> RerunSink:
                 if state is None and self.resumed:  # the run was made without recordings: start them here
                     state = {"episodes": self.counters["executed"], "attempts": self.counters["attempts"]}
-                return RerunSink(out, self.task, self.joint_names, state)
+                return RerunSink(out, self.task, self.joint_names, state, frames=cfg.rerun_frames)
 
             makers.append(("rerun", rerun))
         makers.append(("card", lambda state: DatasetCardSink(state, out)))

@@ -5,6 +5,7 @@ hold the expected entities and timelines, agree with the LeRobot dataset, and th
 from __future__ import annotations
 
 import json
+import shutil
 import subprocess
 import sys
 from collections import defaultdict
@@ -122,15 +123,32 @@ def test_run_recording_has_the_expected_entities_and_timelines(small_noveb_datas
     assert not any(i.startswith(p + "/") for i in images for p in pinholes), (pinholes, images)
 
 
+def episode_ends(data: dict[str, np.ndarray]) -> np.ndarray:
+    """Positions (= dataset indices) of every episode's first and last frame."""
+    first = np.flatnonzero(data["frame_index"] == 0)
+    last = np.append(first[1:] - 1, len(data["index"]) - 1)
+    return np.sort(np.concatenate([first, last]))
+
+
 def test_run_recording_agrees_with_dataset_and_sidecar(small_noveb_dataset, data):
+    """The default recording logs each episode's first and last frame (every view) and its whole paths."""
     chunks = read_recording(*recording_files(small_noveb_dataset))
+    ends = episode_ends(data)
     index, tool = temporal(chunks, "/world/tool", "Points3D:positions")
-    np.testing.assert_array_equal(index, data["index"])
-    np.testing.assert_allclose(np.array([p[0] for p in tool]), data["observation.ee_pos"], atol=1e-5)
+    np.testing.assert_array_equal(index, data["index"][ends])
+    np.testing.assert_allclose(np.array([p[0] for p in tool]), data["observation.ee_pos"][ends], atol=1e-5)
     _, contacts = temporal(chunks, "/contacts", "Scalars:scalars")
-    np.testing.assert_array_equal(np.array(contacts), data["observation.contacts"])
+    np.testing.assert_array_equal(np.array(contacts), data["observation.contacts"][ends])
     _, images = temporal(chunks, "/head_camera/image", "EncodedImage:blob")
-    assert len(images) == len(data["index"]) and all(bytes(b[0][:2]) == b"\xff\xd8" for b in images), "JPEG"
+    assert len(images) == len(ends) and all(bytes(b[0][:2]) == b"\xff\xd8" for b in images), "JPEG"
+    _, masks = temporal(chunks, "/head_camera/segmentation", "SegmentationImage:buffer")
+    assert len(masks) == len(ends)
+    # the tool path is drawn from every frame of its episode
+    starts, paths = temporal(chunks, "/world/tool_path", "LineStrips3D:strips")
+    np.testing.assert_array_equal(starts, data["index"][data["frame_index"] == 0])
+    for start, path in zip(starts, paths, strict=True):
+        mine = data["observation.ee_pos"][data["episode_index"] == data["episode_index"][start]]
+        np.testing.assert_allclose(np.array(path[0]), mine, atol=1e-5)
 
     rows = read_attempts(small_noveb_dataset)
     attempts, feasible = temporal(chunks, "/attempts/feasible", "Scalars:scalars", order_by="attempt")
@@ -343,3 +361,51 @@ def test_sink_lets_an_interruption_through(sink_dir, monkeypatch):
     sink.close()
     segment = json.loads((sink_dir / "babblegen" / "rerun" / INDEX).read_text())["segments"][0]
     assert segment["attempts_end"] == 1, "a segment cut mid-attempt covers that attempt, so resume drops it"
+
+
+def test_sink_ends_logs_first_and_last_frames_and_whole_paths(sink_dir, tmp_path):
+    """`frames="ends"` (a run's default): per episode, every view at frames 0 and T - 1 only, the paths from all
+    T frames; a fraction of the bytes of `frames="all"` for the same episodes."""
+    from babblegen.tasks import get_task
+
+    task = get_task("noveb_tabletop")
+    all_dir = tmp_path / "all"
+    shutil.copytree(sink_dir, all_dir)
+    rng = np.random.default_rng(4)
+    attempts = [fake_attempt(i, i, rng) for i in range(3)]
+    for root, frames in ((sink_dir, "ends"), (all_dir, "all")):
+        sink = RerunSink(root, task, list(ARM_JOINTS), frames=frames)
+        for row, rollout in attempts:
+            sink.log(row, rollout)
+        sink.close()
+    ends = read_recording(*recording_files(sink_dir))
+    index, tool = temporal(ends, "/world/tool", "Points3D:positions")
+    assert index.tolist() == [0, T - 1, T, 2 * T - 1, 2 * T, 3 * T - 1]
+    want = np.concatenate([r.frames.ee_pos[[0, -1]] for _, r in attempts])
+    np.testing.assert_allclose(np.array([p[0] for p in tool]), want, atol=1e-6)
+    image_index, images = temporal(ends, "/head_camera/image", "EncodedImage:blob")
+    assert image_index.tolist() == index.tolist() and all(bytes(b[0][:2]) == b"\xff\xd8" for b in images)
+    _, paths = temporal(ends, "/world/tool_path", "LineStrips3D:strips")
+    for (_, rollout), path in zip(attempts, paths, strict=True):
+        np.testing.assert_allclose(np.array(path[0]), rollout.frames.ee_pos, atol=1e-6)
+    full_index, _ = temporal(read_recording(*recording_files(all_dir)), "/world/tool", "Points3D:positions")
+    assert full_index.tolist() == list(range(3 * T))
+    size = {d: sum(p.stat().st_size for p in recording_files(d)) for d in (sink_dir, all_dir)}
+    assert size[sink_dir] < size[all_dir]
+
+
+def test_unknown_recording_frames_are_refused(tmp_path):
+    from babblegen.exporters.rerun.columns import JpegFrames, logged_frames
+
+    with pytest.raises(ValueError, match="unknown recording frames"):
+        logged_frames(5, "middle")
+    with pytest.raises(ValueError):
+        JpegFrames(frames="middle")
+    assert logged_frames(5, "ends").tolist() == [0, 4] and logged_frames(2, "ends").tolist() == [0, 1]
+    from babblegen.config import ConfigError, RunConfig
+
+    with pytest.raises(ConfigError, match="rerun_frames"):
+        RunConfig.from_dict({"rerun_frames": "middle"}).validate()
+    with pytest.raises(SystemExit) as exit_info:
+        main(["generate", "--out", str(tmp_path / "x"), "--rerun-frames", "middle"])
+    assert exit_info.value.code == 2 and not (tmp_path / "x").exists()

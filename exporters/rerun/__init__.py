@@ -19,12 +19,14 @@ Entities:
     attempts/{novelty,archived,feasible}, attempts/contacts/*              per-attempt scalars
     overview/final_tool, overview/final_objects/<name>, overview/outlines  final positions seen from above
 
-`RerunSink` writes the run's recordings to DIR/babblegen/rerun/ as one .rrd per commit segment; all segments
-share one recording id, so `rerun DIR/babblegen/rerun/*.rrd` opens them as a single recording.
+`RerunSink` writes the run's recordings to DIR/babblegen/rerun/ as one .rrd per commit segment; all segments share one
+recording id, so `rerun DIR/babblegen/rerun/*.rrd` opens them as a single recording. By default (`rerun_frames =
+"ends"`) they log each episode's first and last frame, every view, and the whole paths of the movement; `view` logs
+every frame of the episodes asked for, from the dataset.
 
-Modules: `scene` (static geometry and its logging), `columns` (episodes and per-attempt scalars as Rerun
-columns), `layout` (recording streams and the viewer layout), `sink` (the run's crash-safe segment writer),
-`view` (a recording from a finished dataset). Importing this package loads neither Rerun nor the simulator.
+Modules: `scene` (static geometry and its logging), `columns` (episodes as Rerun columns), `attempts` (per-attempt
+scalars and the overview), `layout` (recording streams and the viewer layout), `sink` (the run's crash-safe segment
+writer), `view` (a recording from a finished dataset). Importing this package loads neither Rerun nor the simulator.
 """
 
 from __future__ import annotations

@@ -4,8 +4,7 @@ timelines `frame_index`, `timestamp`, `index`, `episode_index` and `attempt`."""
 from __future__ import annotations
 
 import io
-from collections.abc import Callable, Iterable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -46,19 +45,32 @@ def encode_view(kind: str, frames: Any, quality: int = JPEG_QUALITY) -> Any:
     return np.asarray(frames, dtype=np.uint8)
 
 
-class JpegFrames:
-    """Every camera's frames as the recording logs them (`encode_view`); a picklable step for the worker-side
-    preparers. Returns {camera: {kind: frames}}."""
+FRAME_MODES = ("ends", "all")  # what a run's recording logs per episode: see `EpisodeColumns`
 
-    def __init__(self, quality: int = JPEG_QUALITY):
+
+def logged_frames(n: int, frames: str) -> np.ndarray:
+    """Indices of the frames an episode of ``n`` frames logs: all of them, or its first and last ("ends")."""
+    if frames not in FRAME_MODES:
+        raise ValueError(f"unknown recording frames {frames!r}; choose one of: {', '.join(FRAME_MODES)}")
+    return np.arange(n) if frames == "all" or n <= 2 else np.array([0, n - 1])
+
+
+class JpegFrames:
+    """Every camera's frames as the recording logs them (`encode_view`), those of ``frames`` only; a picklable
+    step for the worker-side preparers. Returns {camera: {kind: frames}}."""
+
+    def __init__(self, quality: int = JPEG_QUALITY, frames: str = "all"):
         self.quality = quality
+        self.frames = frames
+        logged_frames(1, frames)  # checks the mode
 
     def __call__(self, frames: Any) -> dict[str, dict[str, Any]]:
-        out: dict[str, dict[str, Any]] = {"head": {"rgb": encode_jpeg(frames.images, self.quality)}}
+        pick = logged_frames(len(frames.images), self.frames)
+        out: dict[str, dict[str, Any]] = {"head": {"rgb": encode_jpeg(np.asarray(frames.images)[pick], self.quality)}}
         for camera, kinds in (getattr(frames, "views", None) or {}).items():
             mine = out.setdefault(camera, {})
             for kind, images in kinds.items():
-                mine[kind] = encode_view(kind, images, self.quality)
+                mine[kind] = encode_view(kind, np.asarray(images)[pick], self.quality)
         return out
 
 
@@ -98,6 +110,8 @@ class _Prepared:
     arm: dict[str, tuple[np.ndarray, np.ndarray]]  # shape kind -> centers (T*S, 3), quaternions (T*S, 4)
     objects: np.ndarray  # (T, n, 7) as translation + xyzw quaternion
     ee_pos: np.ndarray
+    tool_path: np.ndarray  # (T_all, 3): every frame's tool position, also when only the ends are logged
+    object_paths: np.ndarray  # (T_all, n, 3)
     touching: np.ndarray  # (T,) bool
     contacts: np.ndarray  # (T, n)
     state: np.ndarray
@@ -114,13 +128,17 @@ class EpisodeColumns:
     """Collects episodes and sends them to Rerun as one chunk per entity: a recording stays compact (each
     chunk carries a few KiB of schema) and logging costs a handful of calls per batch, not per frame.
 
-    Per frame: arm shapes, object poses, the tool point (red while touching), head-camera JPEGs, contact and
-    joint scalars. At each episode's first frame: its tool path, waypoints, object paths, contact places and
-    where the objects started (frame 0's poses, as wireframe boxes at `START`).
+    Per logged frame: arm shapes, object poses, the tool point (red while touching), every camera's images,
+    contact and joint scalars. At each episode's first frame: its whole tool path, waypoints, object paths, contact
+    places and where the objects started (frame 0's poses, as wireframe boxes at `START`). ``frames="all"`` logs
+    every frame; ``"ends"`` only each episode's first and last (before and after the movement, the frames the
+    search compares), the paths still drawn from every frame.
     """
 
-    def __init__(self, scene: Scene) -> None:
+    def __init__(self, scene: Scene, frames: str = "all") -> None:
+        logged_frames(1, frames)  # checks the mode
         self.scene = scene
+        self.frames = frames
         self._eps: list[_Prepared] = []
 
     @property
@@ -128,18 +146,20 @@ class EpisodeColumns:
         return sum(len(e) for e in self._eps)
 
     def add(self, ep: EpisodeData) -> None:
-        n = len(ep)
-        frames = np.arange(n)
-        ts = np.asarray(ep.timestamps, dtype=np.float64) if ep.timestamps is not None else frames / float(ep.fps)
+        n_all = len(ep)
+        pick = logged_frames(n_all, self.frames)
+        n = len(pick)
+        ts_all = np.asarray(ep.timestamps, dtype=np.float64) if ep.timestamps is not None else np.arange(n_all) / ep.fps
         times = {
-            "frame_index": frames,
-            "timestamp": ts,
-            "index": ep.start_index + frames,
+            "frame_index": pick,
+            "timestamp": ts_all[pick],
+            "index": ep.start_index + pick,
             "episode_index": np.full(n, ep.episode_index),
         }
         if ep.attempt is not None:
             times["attempt"] = np.full(n, ep.attempt)
-        tf = self.scene.link_transforms(ep.state)
+        state = np.asarray(ep.state, dtype=np.float64)[pick]
+        tf = self.scene.link_transforms(state)
         arm = {}
         for kind, (links, origins, _) in self.scene.arm_shapes.items():
             world = tf[:, links] @ origins  # (T, S, 4, 4)
@@ -150,11 +170,12 @@ class EpisodeColumns:
         ee = np.asarray(ep.ee_pos, dtype=np.float64)
         jpegs = None
         if ep.images is not None and len(ep.images):
-            jpegs = ep.images if isinstance(ep.images, list) else encode_jpeg(np.asarray(ep.images))
+            jpegs = _logged(ep.images, pick, n_all)
+            jpegs = jpegs if isinstance(jpegs, list) else encode_jpeg(np.asarray(jpegs))
         views: dict[str, dict[str, Any]] = {}
         for camera, kinds in (ep.views or {}).items():
             for kind, frames in kinds.items():
-                frames = encode_view(kind, frames)
+                frames = encode_view(kind, _logged(frames, pick, n_all))
                 if camera == "head" and kind == "rgb":
                     jpegs = frames
                 else:
@@ -165,11 +186,13 @@ class EpisodeColumns:
                 times=times,
                 first={k: v[:1] for k, v in times.items()},
                 arm=arm,
-                objects=objects,
-                ee_pos=ee,
-                touching=contacts.any(axis=1),
-                contacts=contacts,
-                state=np.asarray(ep.state, dtype=np.float64),
+                objects=objects[pick],
+                ee_pos=ee[pick],
+                tool_path=ee,
+                object_paths=objects[..., :3],
+                touching=contacts[pick].any(axis=1),
+                contacts=contacts[pick],
+                state=state,
                 jpegs=jpegs,
                 views=views,
                 targets=np.zeros((0, 3)) if ep.ee_targets is None else np.asarray(ep.ee_targets, float).reshape(-1, 3),
@@ -249,7 +272,7 @@ class EpisodeColumns:
         rec.send_columns(
             "world/tool_path",
             indexes=first,
-            columns=rr.LineStrips3D.columns(strips=[e.ee_pos for e in eps]).partition([1] * len(eps)),
+            columns=rr.LineStrips3D.columns(strips=[e.tool_path for e in eps]).partition([1] * len(eps)),
         )
         rec.send_columns(
             "world/tool_waypoints",
@@ -262,7 +285,7 @@ class EpisodeColumns:
             "world/object_paths",
             indexes=first,
             columns=rr.LineStrips3D.columns(
-                strips=[e.objects[:, j, :3] for e in eps for j in range(n_obj)],
+                strips=[e.object_paths[:, j] for e in eps for j in range(n_obj)],
                 colors=[scene.colors[n] for _ in eps for n in scene.object_names],
                 labels=[n for _ in eps for n in scene.object_names],
             ).partition([n_obj] * len(eps)),
@@ -284,6 +307,16 @@ class EpisodeColumns:
                 labels=[scene.object_names[o] for o in objs],
             ).partition([len(e.events[1]) for e in eps]),
         )
+
+
+def _logged(frames: Any, pick: np.ndarray, n_all: int) -> Any:
+    """An episode's frames of one kind, those at ``pick``: already picked (a worker prepared only those), or all
+    ``n_all`` of them (picked here)."""
+    if len(frames) == len(pick):
+        return frames
+    if len(frames) != n_all:
+        raise ValueError(f"an episode of {n_all} frames came with {len(frames)} images")
+    return [frames[i] for i in pick] if isinstance(frames, list) else np.asarray(frames)[pick]
 
 
 def _send_views(rec: rr.RecordingStream, eps: list[_Prepared], names: list[str]) -> None:
@@ -322,128 +355,3 @@ def log_episode(rec: rr.RecordingStream, scene: Scene, ep: EpisodeData) -> None:
     cols = EpisodeColumns(scene)
     cols.add(ep)
     cols.send(rec)
-
-
-# --- per attempt ---------------------------------------------------------------------------------------------
-@dataclass
-class Tally:
-    """Running counts over attempt rows in order: where the next episode starts and accumulated contacts."""
-
-    object_names: list[str]
-    attempts: int = 0
-    episodes: int = 0
-    frames: int = 0
-    contacts: int = 0
-    per_object: dict[str, int] = field(default_factory=dict)
-
-    def add(self, row: dict[str, Any]) -> None:
-        self.attempts += 1
-        if row.get("feasible"):
-            self.episodes += 1
-            self.frames += int(row.get("n_frames") or 0)
-            touched = row.get("touched") or {}
-            self.contacts += int(any(touched.values()))
-            for name in self.object_names:
-                self.per_object[name] = self.per_object.get(name, 0) + int(bool(touched.get(name)))
-
-    @classmethod
-    def from_rows(cls, rows: Iterable[dict[str, Any]], object_names: list[str]) -> Tally:
-        tally = cls(list(object_names))
-        for row in rows:
-            tally.add(row)
-        return tally
-
-
-class AttemptColumns:
-    """Buffers per-attempt scalars and overview points, sent to Rerun as columns in one go."""
-
-    def __init__(self, scene: Scene, tally: Tally | None = None, static_overview: bool = False) -> None:
-        self.scene = scene
-        self.tally = tally or Tally(scene.object_names)
-        self.static_overview = static_overview  # for a finished run: send() is called once with every row
-        self._rows: list[dict[str, Any]] = []
-
-    def __len__(self) -> int:
-        return len(self._rows)
-
-    def add(self, row: dict[str, Any]) -> None:
-        start = self.tally.frames
-        self.tally.add(row)
-        executed = bool(row.get("feasible")) and row.get("episode_index") is not None
-        self._rows.append(
-            {
-                "attempt": int(row["attempt"]),
-                "feasible": float(bool(row.get("feasible"))),
-                "archived": float(bool(row.get("archived"))),
-                "novelty": np.nan if row.get("novelty") is None else float(row["novelty"]),
-                "total": float(self.tally.contacts),
-                "per_object": [float(self.tally.per_object.get(n, 0)) for n in self.scene.object_names],
-                "episode": int(row["episode_index"]) if executed else -1,
-                "last_index": start + max(int(row.get("n_frames") or 1), 1) - 1 if executed else -1,
-                "final_ee": row.get("final_ee_pos") if executed else None,
-                "final_poses": row.get("final_poses") if executed else None,
-            }
-        )
-
-    def send(self, rec: rr.RecordingStream) -> None:
-        """Log the buffered rows and clear the buffer."""
-        import rerun as rr
-
-        if not self._rows:
-            return
-        rows, self._rows = self._rows, []
-        for executed in (True, False):
-            part = [r for r in rows if (r["episode"] >= 0) == executed]
-            if not part:
-                continue
-
-            def indexes(sel: list[dict[str, Any]], executed: bool = executed) -> list[rr.TimeColumn]:
-                idx = [rr.TimeColumn("attempt", sequence=[r["attempt"] for r in sel])]
-                if executed:
-                    idx.append(rr.TimeColumn("episode_index", sequence=[r["episode"] for r in sel]))
-                    idx.append(rr.TimeColumn("index", sequence=[r["last_index"] for r in sel]))
-                return idx
-
-            idx = indexes(part)
-            for key in ("feasible", "archived", "total"):
-                path = "attempts/contacts/total" if key == "total" else f"attempts/{key}"
-                rec.send_columns(path, indexes=idx, columns=rr.Scalars.columns(scalars=[r[key] for r in part]))
-            n_obj = len(self.scene.object_names)
-            rec.send_columns(
-                "attempts/contacts/per_object",
-                indexes=idx,
-                columns=rr.Scalars.columns(scalars=np.ravel([r["per_object"] for r in part])).partition(
-                    [n_obj] * len(part)
-                ),
-            )
-            novel = [r for r in part if not np.isnan(r["novelty"])]
-            if novel:
-                rec.send_columns(
-                    "attempts/novelty",
-                    indexes=indexes(novel),
-                    columns=rr.Scalars.columns(scalars=[r["novelty"] for r in novel]),
-                )
-            if executed:
-                self._send_overview(rec, part, indexes)
-
-    def _send_overview(
-        self, rec: rr.RecordingStream, part: list[dict[str, Any]], indexes: Callable[[list], list]
-    ) -> None:
-        """Final tool and object positions: static when the whole run is known (all points on every timeline),
-        else one point per attempt, accumulated by the overview view's visible time range."""
-        import rerun as rr
-
-        points = {"overview/final_tool": ([r for r in part if r["final_ee"] is not None], None)}
-        for name in self.scene.object_names:
-            points[f"overview/final_objects/{name}"] = ([r for r in part if name in (r["final_poses"] or {})], name)
-        for path, (sel, name) in points.items():
-            if not sel:
-                continue
-            pos = [r["final_ee"] if name is None else r["final_poses"][name][:3] for r in sel]
-            color = TOOL_COLOR if name is None else self.scene.colors[name]
-            if self.static_overview:
-                rec.log(path, rr.Points3D(pos, colors=color, radii=0.008), static=True)
-            else:
-                n = len(sel)
-                cols = rr.Points3D.columns(positions=pos, colors=[color] * n, radii=[0.008] * n)
-                rec.send_columns(path, indexes=indexes(sel), columns=cols)

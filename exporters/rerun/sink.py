@@ -15,7 +15,8 @@ from typing import TYPE_CHECKING, Any
 from babblegen.store import AttemptRecord, Sink, atomic_write
 
 from ..sidecar import ATTEMPTS, read_attempts, read_run_info, sidecar_dir
-from .columns import MAX_BUFFERED_FRAMES, AttemptColumns, EpisodeColumns, EpisodeData, Tally
+from .attempts import AttemptColumns, Tally
+from .columns import MAX_BUFFERED_FRAMES, EpisodeColumns, EpisodeData
 from .layout import blueprint, new_recording
 from .scene import Scene, log_scene
 
@@ -60,7 +61,14 @@ class RerunSink(Sink):
 
     name = "rerun"
 
-    def __init__(self, out_dir: Path, task: Any, joint_names: list[str], state: dict[str, int] | None = None) -> None:
+    def __init__(
+        self,
+        out_dir: Path,
+        task: Any,
+        joint_names: list[str],
+        state: dict[str, int] | None = None,
+        frames: str = "all",
+    ) -> None:
         # the sink reports its own failures in one warning; the SDK's Rust logger would repeat them (a full disk
         # gives three ERROR lines). RUST_LOG set by the user still wins.
         os.environ.setdefault("RUST_LOG", "off")
@@ -69,6 +77,7 @@ class RerunSink(Sink):
         self.task = task if isinstance(task, dict) else task.to_dict()
         self.joint_names = list(joint_names)
         self.enabled = True
+        self.frames = frames  # each episode's frames logged: "all", or "ends" (`EpisodeColumns`)
         self.scene: Scene | None = None
         self.columns: AttemptColumns | None = None
         self.episodes: EpisodeColumns | None = None
@@ -197,7 +206,7 @@ class RerunSink(Sink):
                 self._image_size = (int(world["camera_height"]), int(world["camera_width"]))
             self._cameras = list(world.get("cameras") or [])
             self.columns = AttemptColumns(self.scene, self._tally)
-            self.episodes = EpisodeColumns(self.scene)
+            self.episodes = EpisodeColumns(self.scene, self.frames)
         index = self._load_index()
         self.dir.mkdir(parents=True, exist_ok=True)
         numbers = [int(p.stem.split("-")[1]) for p in self.dir.glob("segment-*.rrd")]

@@ -12,7 +12,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..sidecar import read_attempts, read_run_info, sidecar_dir
-from .columns import MAX_BUFFERED_FRAMES, AttemptColumns, EpisodeColumns, EpisodeData
+from .attempts import AttemptColumns
+from .columns import MAX_BUFFERED_FRAMES, EpisodeColumns, EpisodeData
 from .layout import blueprint, new_recording
 from .scene import Scene, log_scene
 
