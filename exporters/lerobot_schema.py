@@ -1,5 +1,5 @@
 """The dataset's schema: every feature babblegen writes to a LeRobot dataset, its name, shape and ``info`` (camera
-parameters, depth conventions, mask ids), as DESIGN.md and the README's tables describe them."""
+parameters, depth conventions, mask ids), as DESIGN.md and docs/dataset.md describe them."""
 
 from __future__ import annotations
 

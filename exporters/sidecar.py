@@ -2,7 +2,7 @@
 
 Append-only and flushed per row, so it survives a crash up to the last complete line; the run's commit
 record stores the byte offset it agrees with, and resume truncates to it. Fields are documented in
-README.md ("The sidecar table").
+docs/dataset.md ("The sidecar table").
 """
 
 from __future__ import annotations
@@ -111,7 +111,7 @@ def attempt_row(
     explorer: str,
     object_names: list[str],
 ) -> dict[str, Any]:
-    """The sidecar row of one attempted movement (fields documented in README.md, "The sidecar table")."""
+    """The sidecar row of one attempted movement (fields documented in docs/dataset.md, "The sidecar table")."""
     row: dict[str, Any] = {
         "attempt": cand.index,
         "generation": cand.generation,

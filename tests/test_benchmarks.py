@@ -1,4 +1,4 @@
-"""The benchmarks the README quotes still run against the current interfaces (numbers are theirs to report)."""
+"""The benchmarks the docs quote still run against the current interfaces (numbers are theirs to report)."""
 
 from __future__ import annotations
 

@@ -53,7 +53,7 @@ __all__ = ["NovEB", "NovEBConfig", "upgrade_stored_config"]
 @dataclass
 class NovEBConfig:
     """NovEB parameters; the numbers are those of the paper's appendix. Where babblegen departs from the
-    paper's procedure (README, "Where babblegen departs from the paper"), the option restoring it is named.
+    paper's procedure (docs/departures.md), the option restoring it is named.
 
     ``population`` parents breed ``children`` children per generation, and the ``population`` best of parents ∪
     children survive (the paper: 12 and 12, "50 % kept"; babblegen: 12 and 128, which explores more widely per
@@ -66,7 +66,7 @@ class NovEBConfig:
     """
 
     population: int = 12
-    children: int = 128  # the paper: 12 (see the README's departures: more children of the same parents)
+    children: int = 128  # the paper: 12 (docs/departures.md: more children of the same parents)
     lag: int = 0
     generations: int = 2000
     k: int = 3

@@ -121,7 +121,7 @@ class WorldSettings:
 
 
 def default_cameras() -> tuple[CameraView, ...]:
-    """The head camera's colour and instance masks. Chosen by cost (README, "Views"; benchmarks/bench_views.py):
+    """The head camera's colour and instance masks. Chosen by cost (docs/views.md; benchmarks/bench_views.py):
     masks cost 21 % of a run's executed episodes per second on 2 cores, depth 61 %, a second camera 58 %, so
     depth (``--depth``) and the front view (``--cameras head,front``) are one flag away."""
     return (replace(CAMERA_PRESETS["head"], segmentation=True),)
