@@ -447,6 +447,14 @@ def test_a_resumed_run_keeps_its_video_codec():
     assert resumed_config(stored).video_codec == "libsvtav1"
 
 
+def test_recording_frames_may_change_on_resume_and_older_runs_keep_every_frame():
+    stored = RunConfig().to_dict()
+    assert resumed_config(stored).rerun_frames == "ends"
+    assert resumed_config(stored, {"rerun_frames": "all"}).rerun_frames == "all"  # the recordings only
+    del stored["rerun_frames"]  # stored before the setting existed: its recordings so far log every frame
+    assert resumed_config(stored).rerun_frames == "all"
+
+
 def test_a_run_stored_by_the_generational_version_resumes_as_the_same_search():
     """Runs made before the number of children was a setting stored ``keep_fraction`` (and knew no lag): they
     resume with the children that meant, not with today's defaults."""
