@@ -119,6 +119,18 @@ def build_parser() -> argparse.ArgumentParser:
         help=f"add-waypoint probability [default: {_N.extend_prob}]",
     )
     g.add_argument(
+        "--remove-prob",
+        type=_prob,
+        default=None,
+        help=f"remove-waypoint probability (0: the paper, genomes only grow) [default: {_N.remove_prob}]",
+    )
+    g.add_argument(
+        "--max-waypoints",
+        type=_positive("--max-waypoints"),
+        default=None,
+        help=f"waypoints a genome may grow to; 0: no bound (the paper) [default: {_N.max_waypoints or 0}]",
+    )
+    g.add_argument(
         "--width", type=_positive("--width"), default=None, help=f"camera width [default: {_W.camera_width}]"
     )
     g.add_argument(
@@ -228,6 +240,8 @@ def _overrides(args: argparse.Namespace) -> dict:
             "mutation_prob": args.mutation_prob,
             "sigma": args.sigma,
             "extend_prob": args.extend_prob,
+            "remove_prob": args.remove_prob,
+            "max_waypoints": args.max_waypoints,
         },
         "world": {"camera_width": args.width, "camera_height": args.height, "fps": args.fps, "starts": args.starts},
     }

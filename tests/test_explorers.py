@@ -404,10 +404,14 @@ def test_remove_prob_off_draws_what_the_paper_draws():
         tell_in_order(b, cb)
 
 
-@pytest.mark.parametrize("bad", [{"extend_prob": 0.6, "remove_prob": 0.5}, {"max_waypoints": 0}])
+@pytest.mark.parametrize("bad", [{"extend_prob": 0.6, "remove_prob": 0.5}, {"max_waypoints": -1}])
 def test_bad_length_settings_are_refused(bad):
     with pytest.raises(ValueError):
         NovEBConfig(**bad)
+
+
+def test_max_waypoints_zero_means_no_bound():
+    assert NovEBConfig(max_waypoints=0).max_waypoints is None
 
 
 def tell_in_order(explorer, batch):

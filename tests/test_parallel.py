@@ -125,17 +125,25 @@ def kill_then_resume(out, args: list[str]) -> None:
     assert main(["generate", "--out", str(out), "--resume", "--workers", "2", "--no-progress"]) == 0
 
 
-def test_numpy_without_its_avx512_code_writes_the_same_dataset(one_worker, tmp_path):
-    """numpy picks SIMD code by CPU; the world's arithmetic is elementwise (babblegen.world.exact), so a machine
-    without AVX-512 records the same values. (OpenBLAS's own kernel choice is checked by hand,
-    benchmarks/check_dispatch.py: tests leave OPENBLAS_CORETYPE as the machine sets it.)"""
+@pytest.mark.parametrize(
+    "setting",
+    [{"NPY_DISABLE_CPU_FEATURES": NO_AVX512}, {"LP_NATIVE_VECTOR_WIDTH": "128"}],
+    ids=["numpy_without_avx512", "lavapipe_128"],
+)
+def test_another_cpu_dispatch_writes_the_same_dataset(one_worker, tmp_path, setting):
+    """numpy picks SIMD code by CPU, and lavapipe its vector width: a machine without AVX-512 (or where lavapipe
+    renders 128 bits at a time) records the same values, since the world's arithmetic is elementwise
+    (babblegen.world.exact) and the renderer's pixels do not depend on its vector width. (OpenBLAS's own kernel
+    choice is checked by hand, benchmarks/check_dispatch.py: tests leave OPENBLAS_CORETYPE as the machine sets
+    it.)"""
     import subprocess
     import sys
 
-    out = tmp_path / "numpy-no-avx512"
-    env = {**os.environ, "NPY_DISABLE_CPU_FEATURES": NO_AVX512}  # as benchmarks/check_dispatch.py
+    out = tmp_path / "other-dispatch"
+    env = {**os.environ, **setting}  # as benchmarks/check_dispatch.py
     cmd = [sys.executable, "-m", "babblegen.cli", "generate", "--out", str(out), "--seed", "2", "--workers", "1"]
-    subprocess.run([*cmd, *ARGS], env=env, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    done = subprocess.run([*cmd, *ARGS], env=env, capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr[-2000:]
     assert_same_dataset(one_worker, out)
 
 

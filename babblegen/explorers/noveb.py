@@ -107,8 +107,10 @@ class NovEBConfig:
                 raise ValueError(f"{name} must be a probability in [0, 1], got {p}")
         if self.extend_prob + self.remove_prob > 1.0:
             raise ValueError(f"extend_prob + remove_prob must be <= 1, got {self.extend_prob + self.remove_prob}")
+        if self.max_waypoints == 0:  # a settings file or flag's way to say "no bound"
+            self.max_waypoints = None
         if self.max_waypoints is not None and (int(self.max_waypoints) != self.max_waypoints or self.max_waypoints < 1):
-            raise ValueError(f"max_waypoints must be an integer >= 1 (or absent), got {self.max_waypoints}")
+            raise ValueError(f"max_waypoints must be an integer >= 1 (0: no bound), got {self.max_waypoints}")
         if not self.sigma >= 0.0:
             raise ValueError(f"sigma must be >= 0, got {self.sigma}")
         if int(self.archive_per_generation) != self.archive_per_generation or self.archive_per_generation < 0:
