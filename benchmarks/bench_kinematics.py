@@ -20,8 +20,8 @@ What is measured:
 (b) speed: FK of one configuration (all links; tool only), FK of batches of the sizes the planner uses (one
     state per validity check, up to ~75 states per RRTConnect edge check, 1,000), the planner's whole
     ``SphereCollisionModel.in_collision`` with each FK plugged in, the tool Jacobian (one configuration; 8 at
-    once, as IK uses it), and ``World.solve_ik`` (the World's seeds, stages and tolerance; collision filter
-    unchanged) with each library's IK plugged in, plus raw single-seed IK on reachable targets;
+    once, as IK uses it), and the World's IK (``ArmPlanner.solve_ik``: its seeds, stages and tolerance;
+    collision filter unchanged) with each library's IK plugged in, plus raw single-seed IK on reachable targets;
 (c) lines of code of the hand-written module.
 
 Times are the best of 5 repeats (the machine is shared), in microseconds or milliseconds per call.
@@ -45,7 +45,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 from timing import per_call
 
-from babblegen.world.collision import Box, SphereCollisionModel
+from babblegen.world.collision import SphereCollisionModel
 from babblegen.world.kinematics import ArmKinematics, UrdfModel
 
 REPO = Path(__file__).resolve().parents[1]
@@ -66,7 +66,7 @@ def rotation_angle(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 class SapienPinocchio:
     """SAPIEN's Pinocchio model behind ArmKinematics' interface (link_frames, link_transforms, jacobian,
     inverse_position), one configuration per library call. Enough of ArmKinematics' attributes are copied
-    from `ref` for SphereCollisionModel and World.solve_ik to use it."""
+    from `ref` for SphereCollisionModel and ArmPlanner.solve_ik to use it."""
 
     name = "sapien-pinocchio"
 
@@ -233,49 +233,16 @@ def probe_mplib() -> list[tuple[str, str]]:
 
 
 # --- the World's IK set-up, without the simulator ----------------------------------------------------------
-def arm_exemptions(task: object) -> tuple[np.ndarray, tuple[str, ...], tuple[tuple[str, str], ...]]:
-    """Home pose and collision exemptions of the task's arm, from its RobotSpec where babblegen has one (the
-    registry in babblegen.tasks), otherwise the values World used before robots were registered."""
-    import babblegen.tasks as tasks
+def planning(kin: ArmKinematics):  # -> babblegen.world.planning.ArmPlanner
+    """The World's planner (IK seed bank, collision model of the task's obstacles and the robot's base) for the
+    default task, with `kin` as its kinematics and the robot's home pose (no simulator)."""
+    from babblegen.tasks import DEFAULT_TASK, get_robot, get_task
+    from babblegen.world.planning import ArmPlanner
+    from babblegen.world.settings import WorldSettings
 
-    if hasattr(tasks, "get_robot") and hasattr(task, "robot_uid"):
-        robot = tasks.get_robot(task.robot_uid)
-        return np.asarray(robot.home_qpos, dtype=np.float64), robot.body_exempt_links, robot.self_exempt_pairs
-    from babblegen.tasks import pr2_arm
-
-    return (
-        np.asarray(pr2_arm.HOME_QPOS, dtype=np.float64),
-        ("r_shoulder_pan_link", "r_shoulder_lift_link"),
-        (("r_shoulder_pan_link", "r_upper_arm_roll_link"),),
-    )
-
-
-def planning_world(kin: ArmKinematics):  # -> babblegen.world.world.World
-    """A World with only what World.solve_ik and the planner's checks use: the task's obstacles, the robot
-    body boxes, the collision model and the IK seed bank, built as World.__init__ builds them (no simulator).
-    The exemptions are kept on it as `exempt` for building more collision models."""
-    from babblegen.tasks import DEFAULT_TASK, get_task
-    from babblegen.world.world import World, WorldSettings
-
-    world = World.__new__(World)
-    world.task = get_task(DEFAULT_TASK)
-    world.settings = s = WorldSettings()
-    world.home, body_exempt, self_exempt = arm_exemptions(world.task)
-    world.exempt = {"body_exempt_links": body_exempt, "self_exempt_pairs": self_exempt}
-    world.kin = kin
-    body = [
-        Box(f"robot_body_{i}", tuple(sh.origin[:3, 3]), tuple(sh.size / 2), tuple(map(tuple, sh.origin[:3, :3])))
-        for i, sh in enumerate(kin.urdf.links[BASE])
-    ]
-    world.collision = SphereCollisionModel(
-        kin, world.task.planning_obstacles() + body, margin=s.collision_margin, **world.exempt
-    )
-    world.reach = world._max_reach()
-    pos = kin.link_frames(np.zeros(kin.dof))[1][0]
-    world._pan_xy, world._shoulder_z = pos[1, :2], pos[2, 2]
-    world._lift_radius = float(np.linalg.norm(pos[2, :2] - pos[1, :2]))
-    world._bank_q, world._bank_tool = world._seed_bank(400)
-    return world
+    task = get_task(DEFAULT_TASK)
+    robot = get_robot(task.robot_uid)
+    return ArmPlanner(task, robot, np.asarray(robot.home_qpos, dtype=np.float64), WorldSettings(), kin=kin)
 
 
 # --- lines of code -------------------------------------------------------------------------------------------
@@ -358,19 +325,19 @@ def import_seconds(module: str, repeats: int = 3) -> float:
     return min(run(f"import {module}") for _ in range(repeats)) - empty
 
 
-def solve_ik_row(world, label: str, ik: object, targets: np.ndarray, ref: ArmKinematics) -> list[str]:
-    """World.solve_ik over the targets from home with `ik` as the World's IK (collision filter unchanged)."""
-    world.kin = ik
+def solve_ik_row(arm, label: str, ik: object, targets: np.ndarray, ref: ArmKinematics) -> list[str]:
+    """ArmPlanner.solve_ik over the targets from home with `ik` as its IK (collision filter unchanged)."""
+    arm.kin = ik
     reasons: Counter[str] = Counter()
     times, errs = [], []
     for target in targets:
         t0 = time.perf_counter()
-        sol, reason = world.solve_ik(target, world.home)
+        sol, reason = arm.solve_ik(target, arm.home)
         times.append(time.perf_counter() - t0)
         reasons[reason or "ok"] += 1
         if sol is not None:
             errs.append(np.linalg.norm(ref.tool_position(sol)[0] - target))
-    world.kin = ref
+    arm.kin = ref
     return [
         label,
         f"{reasons['ok']}/{len(targets)}",
@@ -384,7 +351,7 @@ def solve_ik_row(world, label: str, ik: object, targets: np.ndarray, ref: ArmKin
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--configs", type=int, default=1000, help="random configurations for the accuracy check")
-    ap.add_argument("--ik-targets", type=int, default=60, help="targets for World.solve_ik and for raw IK")
+    ap.add_argument("--ik-targets", type=int, default=60, help="targets for ArmPlanner.solve_ik and for raw IK")
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args()
     rng = np.random.default_rng(args.seed)
@@ -439,10 +406,10 @@ def main() -> None:
     print()
 
     # (b) speed: FK, collision checks, Jacobian -----------------------------------------------------------------
-    world = planning_world(ref)
+    arm = planning(ref)
     extent = float(np.linalg.norm(ref.upper - ref.lower))
     edge_states = int(np.ceil(0.2 * extent / 0.03)) + 1  # RRTConnect's default range, 0.03 rad resolution
-    pairs = world._bank_q[rng.integers(0, len(world._bank_q), (200, 2))]
+    pairs = arm.bank_q[rng.integers(0, len(arm.bank_q), (200, 2))]
     direct = np.ceil(np.abs(pairs[:, 1] - pairs[:, 0]).max(axis=1) / 0.03).astype(int) + 2
     print(
         f"planner batch sizes: 1 per state validity check; an RRTConnect edge (range 0.2 x extent "
@@ -465,12 +432,13 @@ def main() -> None:
         rows.append(
             [f"FK all links, batch {b}", *(us(per_call(lambda k=k, qb=qb: k.link_transforms(qb))) for k in kins)]
         )
-    models = [world.collision] + [
+    models = [arm.collision] + [
         SphereCollisionModel(
             k,
-            world.collision.obstacles,
-            margin=world.settings.collision_margin,
-            **world.exempt,
+            arm.collision.obstacles,
+            margin=arm.settings.collision_margin,
+            body_exempt_links=arm.robot.body_exempt_links,
+            self_exempt_pairs=arm.robot.self_exempt_pairs,
         )
         for k in (sap, tor)
     ]
@@ -490,18 +458,18 @@ def main() -> None:
     print()
 
     # (b) speed: IK ------------------------------------------------------------------------------------------------
-    tol = world.settings.ik_tolerance
-    targets = world.task.workspace.to_world(rng.uniform(0.0, 1.0, (args.ik_targets, 3)))
-    rows = [solve_ik_row(world, "babblegen DLS (position only, seeds batched)", ref, targets, ref)]
+    tol = arm.settings.ik_tolerance
+    targets = arm.task.workspace.to_world(rng.uniform(0.0, 1.0, (args.ik_targets, 3)))
+    rows = [solve_ik_row(arm, "babblegen DLS (position only, seeds batched)", ref, targets, ref)]
     sap.first_only = True
-    rows.append(solve_ik_row(world, "sapien CLIK (6-D), stop at first solved seed", sap, targets, ref))
+    rows.append(solve_ik_row(arm, "sapien CLIK (6-D), stop at first solved seed", sap, targets, ref))
     sap.first_only = False
-    rows.append(solve_ik_row(world, "sapien CLIK (6-D), all seeds", sap, targets, ref))
+    rows.append(solve_ik_row(arm, "sapien CLIK (6-D), all seeds", sap, targets, ref))
     sap.first_only = True
     print(
         table(
-            f"World.solve_ik on {args.ik_targets} targets uniform in the task's workspace box, from home "
-            f"(tolerance {tol} m, solver tolerance {tol / 2} m, {world.settings.ik_seeds} seeds per stage, "
+            f"ArmPlanner.solve_ik on {args.ik_targets} targets uniform in the task's workspace box, from home "
+            f"(tolerance {tol} m, solver tolerance {tol / 2} m, {arm.settings.ik_seeds} seeds per stage, "
             "same collision filter; CLIK's target orientation: the seed's)",
             ["IK", "solved", "failures", "mean", "max", "max err m"],
             rows,
@@ -524,7 +492,7 @@ def main() -> None:
                     np.roll(Rotation.from_matrix(reach_rot[i, -1]).as_quat(), 1).astype(np.float32) if exact else None
                 )
             t0 = time.perf_counter()
-            _, err = ik.inverse_position(target, world.home[None], tol=tol * 0.5)
+            _, err = ik.inverse_position(target, arm.home[None], tol=tol * 0.5)
             times.append(time.perf_counter() - t0)
             ok += bool(err[0] < tol)
         rows.append([label, f"{ok}/{len(reach_pos)}", us(float(np.mean(times)))])
