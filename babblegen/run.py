@@ -28,6 +28,7 @@ import numpy as np
 from babblegen.config import ConfigError, RunConfig, resumed_config
 from babblegen.exporters.sidecar import attempt_row, clone_row
 from babblegen.interrupts import Interrupted, Interrupts, StartupInterrupts
+from babblegen.outputs import RunOutputs
 from babblegen.store import RUN_INFO, AttemptRecord, RunStore, atomic_write, read_run_info, sidecar_dir
 from babblegen.world.rollout import Command
 
@@ -162,74 +163,22 @@ class Run:
         self.robot = get_robot(self.task.robot_uid)
         arm = arm_info(self.task)
         self.joint_names = list(arm["joints"])
+        self.outputs = RunOutputs(self.out, cfg, self.task, self.joint_names)
         self.descriptor = build_descriptor(cfg)
         self.explorer = build_explorer(cfg, arm)
-        self.evaluator = build_evaluator(self.task, cfg, prepare=self._preparers(), describe=self.descriptor)
-        self.task_text = f"{cfg.explorer} babbling in {cfg.task}"
+        self.evaluator = build_evaluator(self.task, cfg, prepare=self.outputs.preparers(), describe=self.descriptor)
+        self.task_text = self.outputs.task_text
         try:  # while worker processes start (seconds), import what the sinks need here
-            self._import_sink_libraries()
+            self.outputs.import_libraries()
             check_interrupt()
             self.evaluator.wait_ready()
         except BaseException:
             self.evaluator.close()
             raise
 
-    def _import_sink_libraries(self) -> None:
-        from babblegen.exporters.lerobot import import_lerobot
-
-        import_lerobot()
-        if self.config.rerun:
-            # before Rerun's logger starts: the sink reports its own failures, in one line (`RerunSink`)
-            os.environ.setdefault("RUST_LOG", "off")
-            import rerun  # noqa: F401
-            import rerun.blueprint  # noqa: F401
-
-    def _features(self) -> dict:
-        from babblegen.exporters.lerobot_schema import features
-
-        world = self.config.world
-        shape = (world.camera_height, world.camera_width)
-        return features(self.joint_names, self.task.object_names, *shape, world.cameras, self.task, world)
-
-    def _preparers(self):
-        """The sinks' per-episode work, done by the worker that ran the movement: the LeRobot episode's video
-        and statistics, the Rerun recording's JPEG frames."""
-        from babblegen.evaluation import Preparers
-        from babblegen.exporters.lerobot_encoding import EpisodeEncoder
-        from babblegen.exporters.lerobot_schema import with_default_features
-
-        cfg = self.config
-        steps = {"lerobot": EpisodeEncoder(cfg.world.fps, with_default_features(self._features()), cfg.video_codec)}
-        if cfg.rerun:
-            from babblegen.exporters.rerun import JpegFrames
-
-            steps["rerun"] = JpegFrames(frames=cfg.rerun_frames)
-        return Preparers(steps)
-
     def _sinks(self, repo_id: str) -> list[tuple[str, Any]]:
-        """The run's outputs, in the order they receive each attempt (the sidecar row records the LeRobot
-        write time, so it comes after it; the card is refreshed after the dataset's metadata)."""
-        from babblegen.exporters.dataset_card import DatasetCardSink
-        from babblegen.exporters.lerobot import LeRobotSink
-        from babblegen.exporters.sidecar import SidecarSink
-
-        cfg, out = self.config, self.out
-        create = {"fps": cfg.world.fps, "feats": self._features(), "robot_type": self.task.robot_uid}
-        makers: list[tuple[str, Any]] = [
-            ("lerobot", lambda state: LeRobotSink(state, out, repo_id, self.task_text, create, cfg.video_codec)),
-            ("sidecar", lambda state: SidecarSink(state, out)),
-        ]
-        if cfg.rerun:
-            from babblegen.exporters.rerun import RerunSink
-
-            def rerun(state: dict | None) -> RerunSink:
-                if state is None and self.resumed:  # the run was made without recordings: start them here
-                    state = {"episodes": self.counters["executed"], "attempts": self.counters["attempts"]}
-                return RerunSink(out, self.task, self.joint_names, state, frames=cfg.rerun_frames)
-
-            makers.append(("rerun", rerun))
-        makers.append(("card", lambda state: DatasetCardSink(state, out)))
-        return makers
+        """The run's sinks (`RunOutputs.sinks`)."""
+        return self.outputs.sinks(repo_id, self.counters if self.resumed else None)
 
     def _open_new(self) -> None:
         self.store.open_sinks(self._sinks(self.repo_id)[:1])  # LeRobot creates the root directory

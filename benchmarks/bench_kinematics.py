@@ -1,7 +1,7 @@
 """Hand-written arm kinematics (babblegen/world/kinematics.py) against the kinematics libraries installed.
 
 The arm is tasks/assets/pr2_like_arm.urdf (7 revolute joints, base_link -> r_gripper_link). Compared with
-babblegen's numpy code:
+babblegen's numpy code (each behind its interface: benchmarks/kinematics_libraries.py):
 
 * SAPIEN 3's Pinocchio model: the URDF loaded into a physics-only ``sapien.Scene`` (visuals dropped, so no
   renderer is needed), then ``articulation.create_pinocchio_model()``. Without the ``pinocchio`` Python package
@@ -20,8 +20,8 @@ What is measured:
 (b) speed: FK of one configuration (all links; tool only), FK of batches of the sizes the planner uses (one
     state per validity check, up to ~75 states per RRTConnect edge check, 1,000), the planner's whole
     ``SphereCollisionModel.in_collision`` with each FK plugged in, the tool Jacobian (one configuration; 8 at
-    once, as IK uses it), and ``World.solve_ik`` (the World's seeds, stages and tolerance; collision filter
-    unchanged) with each library's IK plugged in, plus raw single-seed IK on reachable targets;
+    once, as IK uses it), and the World's IK (``ArmPlanner.solve_ik``: its seeds, stages and tolerance;
+    collision filter unchanged) with each library's IK plugged in, plus raw single-seed IK on reachable targets;
 (c) lines of code of the hand-written module.
 
 Times are the best of 5 repeats (the machine is shared), in microseconds or milliseconds per call.
@@ -42,10 +42,11 @@ from collections import Counter
 from pathlib import Path
 
 import numpy as np
+from kinematics_libraries import SapienPinocchio, TorchKinematics, probe_mplib
 from scipy.spatial.transform import Rotation
 from timing import per_call
 
-from babblegen.world.collision import Box, SphereCollisionModel
+from babblegen.world.collision import SphereCollisionModel
 from babblegen.world.kinematics import ArmKinematics, UrdfModel
 
 REPO = Path(__file__).resolve().parents[1]
@@ -62,220 +63,17 @@ def rotation_angle(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.arctan2(0.5 * np.linalg.norm(skew, axis=-1), 0.5 * (np.trace(m, axis1=-2, axis2=-1) - 1.0))
 
 
-# --- the libraries behind babblegen's kinematics interface -------------------------------------------------
-class SapienPinocchio:
-    """SAPIEN's Pinocchio model behind ArmKinematics' interface (link_frames, link_transforms, jacobian,
-    inverse_position), one configuration per library call. Enough of ArmKinematics' attributes are copied
-    from `ref` for SphereCollisionModel and World.solve_ik to use it."""
-
-    name = "sapien-pinocchio"
-
-    def __init__(self, ref: ArmKinematics, urdf: Path):
-        import sapien
-
-        self._scene = sapien.Scene([sapien.physx.PhysxCpuSystem()])  # physics only: visuals are dropped below
-        loader = self._scene.create_urdf_loader()
-        loader.fix_root_link = True
-        builder = loader.load_file_as_articulation_builder(str(urdf))
-        for link in builder.link_builders:
-            link.visual_records = []
-        self.articulation = builder.build()
-        names = [link.name for link in self.articulation.links]
-        joints = [j.name for j in self.articulation.active_joints]
-        if joints != ref.joint_names:
-            raise RuntimeError(f"joint order differs: {joints} vs {ref.joint_names}")
-        self.model = self.articulation.create_pinocchio_model()
-        self.backend = type(self.model).__module__
-        self.urdf, self.link_names, self.joint_names = ref.urdf, ref.link_names, ref.joint_names
-        self.lower, self.upper, self.dof = ref.lower, ref.upper, ref.dof
-        self.index = [names.index(n) for n in ref.link_names]
-        self.tool = self.index[-1]
-        self._ref = ref
-        self.first_only = True  # IK: stop at the first seed that converges
-        self.target_rotation: np.ndarray | None = None  # IK: wxyz quaternion; None: the seed's orientation
-
-    def link_frames(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        q = np.atleast_2d(q)
-        rots = np.empty((len(q), len(self.index), 3, 3))
-        poss = np.empty((len(q), len(self.index), 3))
-        for b, row in enumerate(q):
-            self.model.compute_forward_kinematics(row)
-            for k, idx in enumerate(self.index):
-                m = self.model.get_link_pose(idx).to_transformation_matrix()
-                rots[b, k], poss[b, k] = m[:3, :3], m[:3, 3]
-        return rots, poss
-
-    def link_transforms(self, q: np.ndarray) -> np.ndarray:
-        rot, pos = self.link_frames(q)
-        out = np.zeros((*rot.shape[:2], 4, 4))
-        out[..., :3, :3], out[..., :3, 3], out[..., 3, 3] = rot, pos, 1.0
-        return out
-
-    def tool_position(self, q: np.ndarray) -> np.ndarray:
-        q = np.atleast_2d(q)
-        out = np.empty((len(q), 3))
-        for b, row in enumerate(q):
-            self.model.compute_forward_kinematics(row)
-            out[b] = self.model.get_link_pose(self.tool).p
-        return out
-
-    def jacobian(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Positional tool Jacobian in the world frame: the link-frame Jacobian's linear rows, rotated."""
-        q = np.atleast_2d(q)
-        jac, tool = np.empty((len(q), 3, self.dof)), np.empty((len(q), 3))
-        for b, row in enumerate(q):
-            self.model.compute_forward_kinematics(row)
-            m = self.model.get_link_pose(self.tool).to_transformation_matrix()
-            jac[b] = m[:3, :3] @ self.model.compute_single_link_local_jacobian(row, self.tool)[:3]
-            tool[b] = m[:3, 3]
-        return jac, tool
-
-    def inverse_position(
-        self, target: np.ndarray, seeds: np.ndarray, tol: float = 2e-3, max_iters: int = 1000, **_: object
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """Same contract as ArmKinematics.inverse_position, with Pinocchio's CLIK, which solves full 6-D poses
-        only: the target orientation is the tool's orientation at each seed (or `self.target_rotation`).
-        Seeds run one after another; with `self.first_only` they stop at the first that converges (the
-        hand-written solver stops once one seed has), otherwise all run (more candidates for the collision
-        filter). Results are clipped to the joint limits (CLIK ignores them) and their error is measured
-        with babblegen's FK."""
-        import sapien
-
-        q = np.clip(np.array(seeds, dtype=np.float64), self.lower, self.upper)
-        err = np.full(len(q), np.inf)
-        for i, seed in enumerate(q):
-            self.model.compute_forward_kinematics(seed)
-            rot = self.target_rotation
-            if rot is None:
-                rot = self.model.get_link_pose(self.tool).q
-            pose = sapien.Pose(np.asarray(target, dtype=np.float32), rot)
-            sol, _, _ = self.model.compute_inverse_kinematics(
-                self.tool, pose, initial_qpos=seed, eps=tol, max_iterations=max_iters
-            )
-            q[i] = np.clip(sol, self.lower, self.upper)
-            err[i] = np.linalg.norm(self._ref.tool_position(q[i])[0] - target)
-            if self.first_only and err[i] < tol:
-                break
-        return q, err
-
-
-class TorchKinematics:
-    """pytorch_kinematics' batched FK and Jacobian behind ArmKinematics' interface (float64, CPU)."""
-
-    name = "pytorch_kinematics"
-
-    def __init__(self, ref: ArmKinematics, urdf: Path):
-        import pytorch_kinematics as pk
-        import torch
-
-        torch.set_num_threads(1)
-        self.torch = torch
-        self.chain = pk.build_serial_chain_from_urdf(urdf.read_text(), TOOL).to(dtype=torch.float64)
-        if self.chain.get_joint_parameter_names() != ref.joint_names:
-            raise RuntimeError("joint order differs")
-        self.urdf, self.link_names, self.joint_names = ref.urdf, ref.link_names, ref.joint_names
-        self.lower, self.upper, self.dof = ref.lower, ref.upper, ref.dof
-
-    def link_transforms(self, q: np.ndarray) -> np.ndarray:
-        fk = self.chain.forward_kinematics(self.torch.from_numpy(np.atleast_2d(q)), end_only=False)
-        return self.torch.stack([fk[n].get_matrix() for n in self.link_names], dim=1).numpy()
-
-    def link_frames(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        tf = self.link_transforms(q)
-        return tf[..., :3, :3], tf[..., :3, 3]
-
-    def tool_position(self, q: np.ndarray) -> np.ndarray:
-        fk = self.chain.forward_kinematics(self.torch.from_numpy(np.atleast_2d(q)), end_only=True)
-        return fk.get_matrix()[:, :3, 3].numpy()
-
-    def jacobian(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        th = self.torch.from_numpy(np.atleast_2d(q))
-        return self.chain.jacobian(th)[:, :3].numpy(), self.tool_position(q)
-
-
-def probe_mplib() -> list[tuple[str, str]]:
-    """Whether mplib is installed and which of its kinematics entry points survive (each in a subprocess)."""
-    try:
-        from importlib.metadata import version
-
-        ver = version("mplib")
-    except Exception:
-        return [("mplib", "not installed")]
-    home = "[-1.6,-0.35,-1.6,-1.7,0.0,-0.8,0.0]"
-    links = "['base_link','r_shoulder_pan_link','r_shoulder_lift_link','r_upper_arm_roll_link'," + (
-        "'r_elbow_flex_link','r_forearm_roll_link','r_wrist_flex_link','r_wrist_roll_link','r_gripper_link']"
-    )
-    joints = "['r_shoulder_pan_joint','r_shoulder_lift_joint','r_upper_arm_roll_joint','r_elbow_flex_joint'," + (
-        "'r_forearm_roll_joint','r_wrist_flex_joint','r_wrist_roll_joint']"
-    )
-    probes = {
-        "pinocchio.PinocchioModel(urdf)": (
-            "import numpy as np, mplib.pymp.kinematics.pinocchio as P\n"
-            f"m = P.PinocchioModel({str(URDF)!r}, np.array([0., 0., -9.81]), False)\n"
-            "m.compute_forward_kinematics(np.zeros(7)); print(m.get_link_pose(8))"
-        ),
-        "kdl.KDLModel(urdf).chain_IK_NR": (
-            "import numpy as np, mplib.pymp.kinematics.kdl as K\n"
-            f"m = K.KDLModel({str(URDF)!r}, {links}, {joints}, False)\n"
-            f"print(m.chain_IK_NR(8, np.array({home}), np.array([0.6, -0.3, 0.9, 1, 0, 0, 0.])))"
-        ),
-    }
-    out = [("mplib", f"{ver} installed")]
-    for label, code in probes.items():
-        r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
-        if r.returncode == 0:
-            out.append((label, "works (not benchmarked: add it here)"))
-        elif r.returncode < 0:
-            out.append((label, f"crashes: signal {-r.returncode} ({'SIGSEGV' if r.returncode == -11 else '?'})"))
-        else:
-            out.append((label, f"fails: {(r.stderr.strip().splitlines() or ['?'])[-1][:80]}"))
-    return out
-
-
 # --- the World's IK set-up, without the simulator ----------------------------------------------------------
-def arm_exemptions(task: object) -> tuple[np.ndarray, tuple[str, ...], tuple[tuple[str, str], ...]]:
-    """Home pose and collision exemptions of the task's arm, from its RobotSpec where babblegen has one (the
-    registry in babblegen.tasks), otherwise the values World used before robots were registered."""
-    import babblegen.tasks as tasks
+def planning(kin: ArmKinematics):  # -> babblegen.world.planning.ArmPlanner
+    """The World's planner (IK seed bank, collision model of the task's obstacles and the robot's base) for the
+    default task, with `kin` as its kinematics and the robot's home pose (no simulator)."""
+    from babblegen.tasks import DEFAULT_TASK, get_robot, get_task
+    from babblegen.world.planning import ArmPlanner
+    from babblegen.world.settings import WorldSettings
 
-    if hasattr(tasks, "get_robot") and hasattr(task, "robot_uid"):
-        robot = tasks.get_robot(task.robot_uid)
-        return np.asarray(robot.home_qpos, dtype=np.float64), robot.body_exempt_links, robot.self_exempt_pairs
-    from babblegen.tasks import pr2_arm
-
-    return (
-        np.asarray(pr2_arm.HOME_QPOS, dtype=np.float64),
-        ("r_shoulder_pan_link", "r_shoulder_lift_link"),
-        (("r_shoulder_pan_link", "r_upper_arm_roll_link"),),
-    )
-
-
-def planning_world(kin: ArmKinematics):  # -> babblegen.world.world.World
-    """A World with only what World.solve_ik and the planner's checks use: the task's obstacles, the robot
-    body boxes, the collision model and the IK seed bank, built as World.__init__ builds them (no simulator).
-    The exemptions are kept on it as `exempt` for building more collision models."""
-    from babblegen.tasks import DEFAULT_TASK, get_task
-    from babblegen.world.world import World, WorldSettings
-
-    world = World.__new__(World)
-    world.task = get_task(DEFAULT_TASK)
-    world.settings = s = WorldSettings()
-    world.home, body_exempt, self_exempt = arm_exemptions(world.task)
-    world.exempt = {"body_exempt_links": body_exempt, "self_exempt_pairs": self_exempt}
-    world.kin = kin
-    body = [
-        Box(f"robot_body_{i}", tuple(sh.origin[:3, 3]), tuple(sh.size / 2), tuple(map(tuple, sh.origin[:3, :3])))
-        for i, sh in enumerate(kin.urdf.links[BASE])
-    ]
-    world.collision = SphereCollisionModel(
-        kin, world.task.planning_obstacles() + body, margin=s.collision_margin, **world.exempt
-    )
-    world.reach = world._max_reach()
-    pos = kin.link_frames(np.zeros(kin.dof))[1][0]
-    world._pan_xy, world._shoulder_z = pos[1, :2], pos[2, 2]
-    world._lift_radius = float(np.linalg.norm(pos[2, :2] - pos[1, :2]))
-    world._bank_q, world._bank_tool = world._seed_bank(400)
-    return world
+    task = get_task(DEFAULT_TASK)
+    robot = get_robot(task.robot_uid)
+    return ArmPlanner(task, robot, np.asarray(robot.home_qpos, dtype=np.float64), WorldSettings(), kin=kin)
 
 
 # --- lines of code -------------------------------------------------------------------------------------------
@@ -358,19 +156,19 @@ def import_seconds(module: str, repeats: int = 3) -> float:
     return min(run(f"import {module}") for _ in range(repeats)) - empty
 
 
-def solve_ik_row(world, label: str, ik: object, targets: np.ndarray, ref: ArmKinematics) -> list[str]:
-    """World.solve_ik over the targets from home with `ik` as the World's IK (collision filter unchanged)."""
-    world.kin = ik
+def solve_ik_row(arm, label: str, ik: object, targets: np.ndarray, ref: ArmKinematics) -> list[str]:
+    """ArmPlanner.solve_ik over the targets from home with `ik` as its IK (collision filter unchanged)."""
+    arm.kin = ik
     reasons: Counter[str] = Counter()
     times, errs = [], []
     for target in targets:
         t0 = time.perf_counter()
-        sol, reason = world.solve_ik(target, world.home)
+        sol, reason = arm.solve_ik(target, arm.home)
         times.append(time.perf_counter() - t0)
         reasons[reason or "ok"] += 1
         if sol is not None:
             errs.append(np.linalg.norm(ref.tool_position(sol)[0] - target))
-    world.kin = ref
+    arm.kin = ref
     return [
         label,
         f"{reasons['ok']}/{len(targets)}",
@@ -384,7 +182,7 @@ def solve_ik_row(world, label: str, ik: object, targets: np.ndarray, ref: ArmKin
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--configs", type=int, default=1000, help="random configurations for the accuracy check")
-    ap.add_argument("--ik-targets", type=int, default=60, help="targets for World.solve_ik and for raw IK")
+    ap.add_argument("--ik-targets", type=int, default=60, help="targets for ArmPlanner.solve_ik and for raw IK")
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args()
     rng = np.random.default_rng(args.seed)
@@ -404,7 +202,7 @@ def main() -> None:
     libs: list[SapienPinocchio | TorchKinematics] = [sap, tor]
     print(f"arm: {URDF.relative_to(REPO)}, {ref.dof} DoF, links {ref.link_names[1:]}")
     print(f"SAPIEN Pinocchio backend: {sap.backend}; torch threads: {tor.torch.get_num_threads()}")
-    print(table("mplib", ["entry point", "status"], [list(r) for r in probe_mplib()]))
+    print(table("mplib", ["entry point", "status"], [list(r) for r in probe_mplib(URDF)]))
     print()
 
     # (a) accuracy ------------------------------------------------------------------------------------------
@@ -439,10 +237,10 @@ def main() -> None:
     print()
 
     # (b) speed: FK, collision checks, Jacobian -----------------------------------------------------------------
-    world = planning_world(ref)
+    arm = planning(ref)
     extent = float(np.linalg.norm(ref.upper - ref.lower))
     edge_states = int(np.ceil(0.2 * extent / 0.03)) + 1  # RRTConnect's default range, 0.03 rad resolution
-    pairs = world._bank_q[rng.integers(0, len(world._bank_q), (200, 2))]
+    pairs = arm.bank_q[rng.integers(0, len(arm.bank_q), (200, 2))]
     direct = np.ceil(np.abs(pairs[:, 1] - pairs[:, 0]).max(axis=1) / 0.03).astype(int) + 2
     print(
         f"planner batch sizes: 1 per state validity check; an RRTConnect edge (range 0.2 x extent "
@@ -465,12 +263,13 @@ def main() -> None:
         rows.append(
             [f"FK all links, batch {b}", *(us(per_call(lambda k=k, qb=qb: k.link_transforms(qb))) for k in kins)]
         )
-    models = [world.collision] + [
+    models = [arm.collision] + [
         SphereCollisionModel(
             k,
-            world.collision.obstacles,
-            margin=world.settings.collision_margin,
-            **world.exempt,
+            arm.collision.obstacles,
+            margin=arm.settings.collision_margin,
+            body_exempt_links=arm.robot.body_exempt_links,
+            self_exempt_pairs=arm.robot.self_exempt_pairs,
         )
         for k in (sap, tor)
     ]
@@ -490,18 +289,18 @@ def main() -> None:
     print()
 
     # (b) speed: IK ------------------------------------------------------------------------------------------------
-    tol = world.settings.ik_tolerance
-    targets = world.task.workspace.to_world(rng.uniform(0.0, 1.0, (args.ik_targets, 3)))
-    rows = [solve_ik_row(world, "babblegen DLS (position only, seeds batched)", ref, targets, ref)]
+    tol = arm.settings.ik_tolerance
+    targets = arm.task.workspace.to_world(rng.uniform(0.0, 1.0, (args.ik_targets, 3)))
+    rows = [solve_ik_row(arm, "babblegen DLS (position only, seeds batched)", ref, targets, ref)]
     sap.first_only = True
-    rows.append(solve_ik_row(world, "sapien CLIK (6-D), stop at first solved seed", sap, targets, ref))
+    rows.append(solve_ik_row(arm, "sapien CLIK (6-D), stop at first solved seed", sap, targets, ref))
     sap.first_only = False
-    rows.append(solve_ik_row(world, "sapien CLIK (6-D), all seeds", sap, targets, ref))
+    rows.append(solve_ik_row(arm, "sapien CLIK (6-D), all seeds", sap, targets, ref))
     sap.first_only = True
     print(
         table(
-            f"World.solve_ik on {args.ik_targets} targets uniform in the task's workspace box, from home "
-            f"(tolerance {tol} m, solver tolerance {tol / 2} m, {world.settings.ik_seeds} seeds per stage, "
+            f"ArmPlanner.solve_ik on {args.ik_targets} targets uniform in the task's workspace box, from home "
+            f"(tolerance {tol} m, solver tolerance {tol / 2} m, {arm.settings.ik_seeds} seeds per stage, "
             "same collision filter; CLIK's target orientation: the seed's)",
             ["IK", "solved", "failures", "mean", "max", "max err m"],
             rows,
@@ -524,7 +323,7 @@ def main() -> None:
                     np.roll(Rotation.from_matrix(reach_rot[i, -1]).as_quat(), 1).astype(np.float32) if exact else None
                 )
             t0 = time.perf_counter()
-            _, err = ik.inverse_position(target, world.home[None], tol=tol * 0.5)
+            _, err = ik.inverse_position(target, arm.home[None], tol=tol * 0.5)
             times.append(time.perf_counter() - t0)
             ok += bool(err[0] < tol)
         rows.append([label, f"{ok}/{len(reach_pos)}", us(float(np.mean(times)))])

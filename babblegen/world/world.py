@@ -1,9 +1,8 @@
 """The simulated world: turns a command into an executed, recorded trajectory (or a reason it was not).
 
-One `World` owns a ManiSkill env (SAPIEN physics + CPU rendering), the arm's kinematic model, a collision
-model of the static scene, and an OMPL planner. A rollout: reset the scene, plan (IK per waypoint, then a
-collision-free joint path per segment), execute the path out and back under the joint position
-controller, let the scene settle, and record frames at a fixed rate.
+One `World` owns a ManiSkill env (SAPIEN physics + CPU rendering) and an `ArmPlanner` (`planning.py`: IK and
+collision-free joint paths). A rollout: plan, reset the scene, execute the path out and back under the joint
+position controller, let the scene settle, and record frames at a fixed rate.
 """
 
 from __future__ import annotations
@@ -20,10 +19,8 @@ import torch
 from babblegen.scene import TaskSpec
 from babblegen.starts import layout_poses
 from babblegen.world.cameras import CameraRig
-from babblegen.world.collision import Box, SphereCollisionModel
 from babblegen.world.exact import row_norm
-from babblegen.world.kinematics import ArmKinematics, UrdfModel
-from babblegen.world.planner import JointPlanner
+from babblegen.world.planning import ArmPlanner
 from babblegen.world.rollout import Command, Frames, Rollout
 from babblegen.world.settings import WorldSettings
 
@@ -57,30 +54,10 @@ class World:
         self.agent = self.sim.agent
         self.home = np.asarray(self.agent.keyframes["home"].qpos, dtype=np.float64)
 
-        urdf = UrdfModel.load(robot.urdf)
-        self.kin = ArmKinematics(urdf, robot.base_link, robot.tool_link)
-        body = [
-            Box(
-                f"robot_body_{i}",
-                tuple(sh.origin[:3, 3]),
-                tuple(sh.size / 2),
-                tuple(map(tuple, sh.origin[:3, :3])),
-            )
-            for i, sh in enumerate(urdf.links[robot.base_link])
-        ]
-        self.collision = SphereCollisionModel(
-            self.kin,
-            task.planning_obstacles() + body,
-            margin=s.collision_margin,
-            body_exempt_links=robot.body_exempt_links,
-            self_exempt_pairs=robot.self_exempt_pairs,
-        )
-        self.planner = JointPlanner(self.collision, max_iterations=s.plan_iterations, time_limit=s.plan_time_limit)
-        self.reach = self._max_reach()
-        pos = self.kin.link_frames(np.zeros(self.kin.dof))[1][0]
-        self._pan_xy, self._shoulder_z = pos[1, :2], pos[2, 2]
-        self._lift_radius = float(row_norm(pos[2, :2] - pos[1, :2]))
-        self._bank_q, self._bank_tool = self._seed_bank(400)
+        self.planning = ArmPlanner(task, robot, self.home, s)
+        # its parts, under the names the rest of the code uses
+        self.kin, self.collision, self.planner = self.planning.kin, self.planning.collision, self.planning.joint_planner
+        self.reach = self.planning.reach
 
         self.object_names = task.object_names
         self._bind_scene()
@@ -139,97 +116,23 @@ class World:
         for joint, value in zip(self._drive_joints, values.tolist(), strict=True):
             joint.set_drive_target(value)
 
-    # --- geometry helpers -------------------------------------------------------------------------------
-    def _max_reach(self) -> float:
-        """Distance from the shoulder-lift axis to the tool with the arm stretched out."""
-        stretched = np.clip(np.zeros(self.kin.dof), self.kin.lower, self.kin.upper)
-        _, pos = self.kin.link_frames(stretched)
-        return float(row_norm(pos[0, -1] - pos[0, 2]))
-
+    # --- planning (`ArmPlanner`) ---------------------------------------------------------------------------
     @property
     def start_norm(self) -> np.ndarray:
         """The home tool position in normalised workspace coordinates (the start of every trajectory)."""
-        return self.task.workspace.to_norm(self.kin.tool_position(self.home)[0])
+        return self.planning.start_norm
 
     def shoulder_distance(self, points: np.ndarray) -> np.ndarray:
-        """Distance from points (..., 3) to the nearest place the shoulder-lift joint can be (a circle
-        around the pan axis): beyond `reach`, no configuration gets the tool there."""
-        points = np.asarray(points)
-        horizontal = row_norm(points[..., :2] - self._pan_xy)
-        return np.hypot(horizontal - self._lift_radius, points[..., 2] - self._shoulder_z)
-
-    def _seed_bank(self, n: int) -> tuple[np.ndarray, np.ndarray]:
-        """Collision-free configurations spread over the joint space (fixed seed) and their tool points:
-        IK starts from the ones whose tool is nearest its target."""
-        rng = np.random.default_rng(12345)
-        q = rng.uniform(self.kin.lower, self.kin.upper, (8 * n, self.kin.dof))
-        q = q[~self.collision.in_collision(q)][:n]
-        return q, self.kin.tool_position(q)
+        """`ArmPlanner.shoulder_distance`: beyond `reach`, no configuration gets the tool there."""
+        return self.planning.shoulder_distance(points)
 
     def solve_ik(self, target: np.ndarray, seed_q: np.ndarray) -> tuple[np.ndarray | None, str]:
-        """A collision-free joint configuration reaching `target`, preferring one close to `seed_q`.
-
-        Deterministic: the same target and seed give the same answer (restarts draw from a generator
-        seeded by the target), so a genome always produces the same movement.
-        """
-        target = np.asarray(target, dtype=np.float64)
-        if self.shoulder_distance(target) > self.reach:
-            return None, "out_of_reach"
-        s = self.settings
-        rng = np.random.default_rng(np.frombuffer(np.round(target, 9).tobytes(), dtype=np.uint32))
-        near = np.argsort(row_norm(self._bank_tool - target), kind="stable")[: max(s.ik_seeds - 2, 1)]
-        # Stages: from where the arm is (smallest motion), then from stored configurations whose tool is near
-        # the target, then random restarts. IK stops at the first seed that converges, so order matters.
-        stages = [np.vstack([seed_q, self.home]), self._bank_q[near]]
-        stages += [rng.uniform(self.kin.lower, self.kin.upper, (s.ik_seeds, self.kin.dof)) for _ in range(2)]
-        found_any = False
-        for seeds in stages:
-            q, err = self.kin.inverse_position(target, seeds, tol=s.ik_tolerance * 0.5)
-            ok = err < s.ik_tolerance
-            if not ok.any():
-                continue
-            found_any = True
-            cand = q[ok][~self.collision.in_collision(q[ok])]
-            if len(cand):
-                return cand[np.argmin(np.abs(cand - seed_q).sum(axis=1))], ""
-        return None, "target_in_collision" if found_any else "no_ik"
+        """`ArmPlanner.solve_ik`: a collision-free configuration reaching `target`, near `seed_q`."""
+        return self.planning.solve_ik(target, seed_q)
 
     def plan_command(self, command: Command) -> tuple[np.ndarray | None, str, np.ndarray | None, str, dict]:
-        """Joint path home -> targets (not yet back), or the reason it does not exist."""
-        timings = {"ik": 0.0, "plan": 0.0}
-        q_prev, path, planners = self.home, [self.home[None]], set()
-        if command.kind == "ee_waypoints":
-            targets = self.task.workspace.to_world(np.atleast_2d(command.values))
-            goals = []
-            for target in targets:
-                t0 = time.perf_counter()
-                q, reason = self.solve_ik(target, q_prev)
-                timings["ik"] += time.perf_counter() - t0
-                if q is None:
-                    return None, reason, targets, "", timings
-                goals.append(q)
-                q_prev = q
-        elif command.kind == "joint_target":
-            targets = None
-            goal = np.asarray(command.values, dtype=np.float64)
-            if np.any(goal < self.kin.lower - 1e-9) or np.any(goal > self.kin.upper + 1e-9):
-                raise ValueError("joint target outside the joint limits")
-            if self.collision.in_collision(goal[None])[0]:
-                return None, "target_in_collision", None, "", timings
-            goals = [goal]
-        else:
-            raise ValueError(f"unknown command kind {command.kind!r}")
-        q_prev = self.home
-        for goal in goals:
-            res = self.planner.plan(q_prev, goal)
-            timings["plan"] += res.seconds
-            if res.path is None:
-                return None, "no_plan", targets, "", timings
-            path.append(res.path[1:])
-            planners.add(res.planner)
-            q_prev = goal
-        planner = "rrtconnect" if "rrtconnect" in planners else "direct"
-        return np.concatenate(path), "", targets, planner, timings
+        """`ArmPlanner.plan_command`: joint path home -> targets (not yet back), or the reason it does not exist."""
+        return self.planning.plan_command(command)
 
     # --- simulation ---------------------------------------------------------------------------------------
     def _object_poses(self) -> np.ndarray:

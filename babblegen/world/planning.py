@@ -1,0 +1,153 @@
+"""Planning, without the simulator: a command to a collision-free joint path, or the reason there is none.
+
+`ArmPlanner` holds the arm's kinematic model, a sphere collision model of the static scene (the task's
+obstacles and the robot's base), the OMPL joint planner, the home pose and a bank of IK seeds. It solves IK per
+waypoint (from the arm's last configuration, then from bank configurations whose tool is near the target, then
+random restarts) and plans a collision-free segment to each goal. `World` owns one and executes its paths.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from babblegen.robot import RobotSpec
+from babblegen.scene import TaskSpec
+from babblegen.world.collision import Box, SphereCollisionModel
+from babblegen.world.exact import row_norm
+from babblegen.world.kinematics import ArmKinematics, UrdfModel
+from babblegen.world.planner import JointPlanner
+from babblegen.world.rollout import Command
+from babblegen.world.settings import WorldSettings
+
+
+class ArmPlanner:
+    """Plans commands for one arm in one task's static scene. `kin` replaces the kinematic model loaded from the
+    robot's URDF (a benchmark plugs other kinematics libraries in); it needs `urdf` for the base's boxes."""
+
+    def __init__(
+        self,
+        task: TaskSpec,
+        robot: RobotSpec,
+        home: np.ndarray,
+        settings: WorldSettings,
+        kin: ArmKinematics | None = None,
+    ):
+        self.task, self.robot, self.settings, self.home = task, robot, settings, home
+        self.kin = kin or ArmKinematics(UrdfModel.load(robot.urdf), robot.base_link, robot.tool_link)
+        body = [
+            Box(
+                f"robot_body_{i}",
+                tuple(sh.origin[:3, 3]),
+                tuple(sh.size / 2),
+                tuple(map(tuple, sh.origin[:3, :3])),
+            )
+            for i, sh in enumerate(self.kin.urdf.links[robot.base_link])
+        ]
+        self.collision = SphereCollisionModel(
+            self.kin,
+            task.planning_obstacles() + body,
+            margin=settings.collision_margin,
+            body_exempt_links=robot.body_exempt_links,
+            self_exempt_pairs=robot.self_exempt_pairs,
+        )
+        self.joint_planner = JointPlanner(
+            self.collision, max_iterations=settings.plan_iterations, time_limit=settings.plan_time_limit
+        )
+        self.reach = self._max_reach()
+        pos = self.kin.link_frames(np.zeros(self.kin.dof))[1][0]
+        self._pan_xy, self._shoulder_z = pos[1, :2], pos[2, 2]
+        self._lift_radius = float(row_norm(pos[2, :2] - pos[1, :2]))
+        self.bank_q, self.bank_tool = self._seed_bank(400)
+
+    def _max_reach(self) -> float:
+        """Distance from the shoulder-lift axis to the tool with the arm stretched out."""
+        stretched = np.clip(np.zeros(self.kin.dof), self.kin.lower, self.kin.upper)
+        _, pos = self.kin.link_frames(stretched)
+        return float(row_norm(pos[0, -1] - pos[0, 2]))
+
+    @property
+    def start_norm(self) -> np.ndarray:
+        """The home tool position in normalised workspace coordinates (the start of every trajectory)."""
+        return self.task.workspace.to_norm(self.kin.tool_position(self.home)[0])
+
+    def shoulder_distance(self, points: np.ndarray) -> np.ndarray:
+        """Distance from points (..., 3) to the nearest place the shoulder-lift joint can be (a circle
+        around the pan axis): beyond `reach`, no configuration gets the tool there."""
+        points = np.asarray(points)
+        horizontal = row_norm(points[..., :2] - self._pan_xy)
+        return np.hypot(horizontal - self._lift_radius, points[..., 2] - self._shoulder_z)
+
+    def _seed_bank(self, n: int) -> tuple[np.ndarray, np.ndarray]:
+        """Collision-free configurations spread over the joint space (fixed seed) and their tool points:
+        IK starts from the ones whose tool is nearest its target."""
+        rng = np.random.default_rng(12345)
+        q = rng.uniform(self.kin.lower, self.kin.upper, (8 * n, self.kin.dof))
+        q = q[~self.collision.in_collision(q)][:n]
+        return q, self.kin.tool_position(q)
+
+    def solve_ik(self, target: np.ndarray, seed_q: np.ndarray) -> tuple[np.ndarray | None, str]:
+        """A collision-free joint configuration reaching `target`, preferring one close to `seed_q`.
+
+        Deterministic: the same target and seed give the same answer (restarts draw from a generator
+        seeded by the target), so a genome always produces the same movement.
+        """
+        target = np.asarray(target, dtype=np.float64)
+        if self.shoulder_distance(target) > self.reach:
+            return None, "out_of_reach"
+        s = self.settings
+        rng = np.random.default_rng(np.frombuffer(np.round(target, 9).tobytes(), dtype=np.uint32))
+        near = np.argsort(row_norm(self.bank_tool - target), kind="stable")[: max(s.ik_seeds - 2, 1)]
+        # Stages: from where the arm is (smallest motion), then from stored configurations whose tool is near
+        # the target, then random restarts. IK stops at the first seed that converges, so order matters.
+        stages = [np.vstack([seed_q, self.home]), self.bank_q[near]]
+        stages += [rng.uniform(self.kin.lower, self.kin.upper, (s.ik_seeds, self.kin.dof)) for _ in range(2)]
+        found_any = False
+        for seeds in stages:
+            q, err = self.kin.inverse_position(target, seeds, tol=s.ik_tolerance * 0.5)
+            ok = err < s.ik_tolerance
+            if not ok.any():
+                continue
+            found_any = True
+            cand = q[ok][~self.collision.in_collision(q[ok])]
+            if len(cand):
+                return cand[np.argmin(np.abs(cand - seed_q).sum(axis=1))], ""
+        return None, "target_in_collision" if found_any else "no_ik"
+
+    def plan_command(self, command: Command) -> tuple[np.ndarray | None, str, np.ndarray | None, str, dict]:
+        """Joint path home -> targets (not yet back), or the reason it does not exist."""
+        timings = {"ik": 0.0, "plan": 0.0}
+        q_prev, path, planners = self.home, [self.home[None]], set()
+        if command.kind == "ee_waypoints":
+            targets = self.task.workspace.to_world(np.atleast_2d(command.values))
+            goals = []
+            for target in targets:
+                t0 = time.perf_counter()
+                q, reason = self.solve_ik(target, q_prev)
+                timings["ik"] += time.perf_counter() - t0
+                if q is None:
+                    return None, reason, targets, "", timings
+                goals.append(q)
+                q_prev = q
+        elif command.kind == "joint_target":
+            targets = None
+            goal = np.asarray(command.values, dtype=np.float64)
+            if np.any(goal < self.kin.lower - 1e-9) or np.any(goal > self.kin.upper + 1e-9):
+                raise ValueError("joint target outside the joint limits")
+            if self.collision.in_collision(goal[None])[0]:
+                return None, "target_in_collision", None, "", timings
+            goals = [goal]
+        else:
+            raise ValueError(f"unknown command kind {command.kind!r}")
+        q_prev = self.home
+        for goal in goals:
+            res = self.joint_planner.plan(q_prev, goal)
+            timings["plan"] += res.seconds
+            if res.path is None:
+                return None, "no_plan", targets, "", timings
+            path.append(res.path[1:])
+            planners.add(res.planner)
+            q_prev = goal
+        planner = "rrtconnect" if "rrtconnect" in planners else "direct"
+        return np.concatenate(path), "", targets, planner, timings
