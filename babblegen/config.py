@@ -139,6 +139,7 @@ def resumed_config(stored: dict[str, Any], overrides: dict[str, Any] | None = No
     data.setdefault("rerun_frames", "all")  # runs stored before the setting existed recorded every frame
     data["noveb"] = upgrade_stored_config(data.get("noveb", {}))
     data["world"].setdefault("cameras", [dict(c) for c in LEGACY_CAMERAS])  # stored before cameras were settings
+    data["world"].setdefault("return_home", "retrace")  # stored before the setting existed: the arm retraced
     for key, value in (overrides or {}).items():
         if value is None:
             continue

@@ -8,6 +8,7 @@ from typing import Any
 MAX_CAMERA_SIDE = 2048  # pixels: larger frames exhaust the CPU renderer and the video encoder
 MOUNTS = ("head", "fixed", "wrist")
 MODALITIES = ("depth", "segmentation")
+RETURNS_HOME = ("retrace", "direct")  # back along the path out, or straight home in joint space where that is free
 START_MODES = ("fixed", "varied")  # the paper's scene for every episode, or a settled layout drawn per start
 
 
@@ -75,6 +76,9 @@ class WorldSettings:
     sim_freq: int = 100  # physics steps per second
     max_joint_speed: float = 1.5  # rad/s on the fastest joint along the path
     dwell_seconds: float = 0.2  # pause at the final waypoint before returning
+    # how the arm goes home after the dwell: "retrace" (back through every waypoint) or "direct" (a straight line
+    # in joint space, where it is collision-free with the table and the robot, else back along the path)
+    return_home: str = "retrace"
     settle_seconds: float = 0.5  # at least this long after the return, before the after image ...
     max_settle_seconds: float = 3.0  # ... and longer, up to this, while an object still moves
     rest_speed: float = 0.005  # m/s (and 10x that in rad/s): an object slower than this is at rest
@@ -98,6 +102,8 @@ class WorldSettings:
             raise ValueError("the cameras must include 'head', the behaviour camera the search looks through")
         if len(set(names)) != len(names):
             raise ValueError(f"camera names must differ, got {names}")
+        if self.return_home not in RETURNS_HOME:
+            raise ValueError(f"unknown return_home {self.return_home!r}; choose one of: {', '.join(RETURNS_HOME)}")
         if self.starts not in START_MODES:
             raise ValueError(f"unknown starts {self.starts!r}; choose one of: {', '.join(START_MODES)}")
         if not self.start_settle_seconds > 0:

@@ -178,6 +178,14 @@ class World:
                 touched[obj] = True
         return touched
 
+    def _way_home(self, out_path: np.ndarray) -> np.ndarray:
+        """The joint path from the end of ``out_path`` back home (`WorldSettings.return_home`)."""
+        if self.settings.return_home == "direct":
+            last = out_path[-1]
+            if self.planner.model.motion_free(last, self.home, self.planner.resolution):
+                return np.stack([last, self.home])
+        return out_path[::-1]
+
     def _timed_path(self, path: np.ndarray) -> np.ndarray:
         """Joint targets at the control rate along a piecewise-linear path at max_joint_speed."""
         s = self.settings
@@ -247,7 +255,7 @@ class World:
         s = self.settings
         out = self._timed_path(out_path)
         dwell = np.repeat(out[-1:], max(int(round(s.dwell_seconds * s.control_freq)), 0), axis=0)
-        back = self._timed_path(out_path[::-1])
+        back = self._timed_path(self._way_home(out_path))
         settle = np.repeat(self.home[None], max(int(round(s.settle_seconds * s.control_freq)), 1), axis=0)
         schedule = np.concatenate([out, dwell, back, settle])
         per_frame = s.control_freq // s.fps
