@@ -13,7 +13,7 @@ from babblegen.descriptors import PHash
 from babblegen.tasks import get_task
 from babblegen.world.reference import ManiSkillDrivenWorld
 from babblegen.world.rollout import REASONS, Command, Rollout
-from babblegen.world.world import World
+from babblegen.world.world import World, WorldSettings
 
 # ManiSkill's action check trips a NumPy 2 deprecation warning on every control step.
 pytestmark = pytest.mark.filterwarnings("ignore:__array_wrap__ must accept context:DeprecationWarning")
@@ -368,3 +368,25 @@ def test_drive_targets_and_contact_scan_record_what_maniskill_s_controller_does_
         assert touching >= 4, "contact-rich movements among them"
     finally:
         reference.close()
+
+
+def test_a_direct_return_home_is_shorter_and_ends_home(world):
+    """`return_home = "direct"`: after the dwell the arm goes straight home in joint space (where that is free),
+    not back through the waypoints; a one-waypoint movement planned as a straight line records the same."""
+    direct = World(get_task("noveb_tabletop"), WorldSettings(return_home="direct"), seed=0)
+    try:
+        tour = waypoints(world, np.array([[0.55, 0.35, 1.05], [0.75, 0.0, 1.1], [0.55, -0.35, 1.05]]))
+        a, b = world.rollout(tour), direct.rollout(tour)
+        assert a.feasible and b.feasible, (a.reason, b.reason)
+        out = a.joint_path[: (len(a.joint_path) + 1) // 2]  # retrace: the path out, then the same path back
+        np.testing.assert_array_equal(a.joint_path, np.concatenate([out, out[::-1][1:]]))
+        np.testing.assert_array_equal(b.joint_path, np.concatenate([out, world.home[None]]))  # direct: out, home
+        assert len(out) > 2 and len(b.frames) < len(a.frames)
+        np.testing.assert_allclose(b.frames.state[-1], world.home, atol=1e-4)
+        one = waypoints(world, np.array([[0.7, 0.1, 1.0]]))
+        c, d = world.rollout(one), direct.rollout(one)
+        assert c.planner == "direct" and c.feasible
+        for key in ("state", "action", "object_poses", "contacts"):
+            np.testing.assert_array_equal(getattr(c.frames, key), getattr(d.frames, key))
+    finally:
+        direct.close()

@@ -255,7 +255,8 @@ class World:
         s = self.settings
         out = self._timed_path(out_path)
         dwell = np.repeat(out[-1:], max(int(round(s.dwell_seconds * s.control_freq)), 0), axis=0)
-        back = self._timed_path(self._way_home(out_path))
+        home_path = self._way_home(out_path)
+        back = self._timed_path(home_path)
         settle = np.repeat(self.home[None], max(int(round(s.settle_seconds * s.control_freq)), 1), axis=0)
         schedule = np.concatenate([out, dwell, back, settle])
         per_frame = s.control_freq // s.fps
@@ -338,7 +339,7 @@ class World:
             command,
             True,
             ee_targets=targets,
-            joint_path=np.concatenate([out_path, out_path[::-1][1:]]),
+            joint_path=np.concatenate([out_path, home_path[1:]]),
             planner=planner,
             frames=frames,
             touched=touched_any,
