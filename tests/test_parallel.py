@@ -211,21 +211,22 @@ def test_ray_auto_starts_a_local_cluster_and_writes_the_same_dataset(one_worker,
 @pytest.mark.parametrize("starts", ["fixed", "varied"])
 def test_two_ray_nodes_write_the_same_dataset_as_one_worker(one_worker, one_worker_varied, tmp_path, starts):
     """A real multi-node cluster on this machine: two Ray nodes with one CPU each, so the two rollout actors
-    (one CPU each) must run on different nodes; the second node's processes run numpy without its AVX-512 code,
-    as a node with another CPU would."""
+    (one CPU each) must run on different nodes; the second node's processes run numpy without its AVX-512 code and
+    lavapipe as on a CPU with SSE4.1 alone, as a node with another CPU would."""
     ray = pytest.importorskip("ray")
     from ray.cluster_utils import Cluster
     from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
 
     cluster = Cluster(initialize_head=True, head_node_args={"num_cpus": 1, "include_dashboard": False})
     try:
-        node = cluster.add_node(num_cpus=1, env_vars={"NPY_DISABLE_CPU_FEATURES": NO_AVX512})
+        other_cpu = {"NPY_DISABLE_CPU_FEATURES": NO_AVX512, **LAVAPIPE_128}
+        node = cluster.add_node(num_cpus=1, env_vars=other_cpu)
         cluster.wait_for_nodes()
         address = cluster.address
         ray.init(address=address)
         on_node = NodeAffinitySchedulingStrategy(node.node_id, soft=False)
-        setting = ray.remote(lambda: os.environ.get("NPY_DISABLE_CPU_FEATURES"))
-        assert ray.get(setting.options(scheduling_strategy=on_node, num_cpus=1).remote()) == NO_AVX512
+        setting = ray.remote(lambda: {k: os.environ.get(k) for k in other_cpu})
+        assert ray.get(setting.options(scheduling_strategy=on_node, num_cpus=1).remote()) == other_cpu
         ray.shutdown()
         out = tmp_path / "two-nodes"
         args = VARIED if starts == "varied" else ARGS
