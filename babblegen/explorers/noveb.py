@@ -73,14 +73,16 @@ class NovEBConfig:
     mutation_prob: float = 0.3
     sigma: float = 0.3
     extend_prob: float = 0.05
-    remove_prob: float = 0.0  # remove-waypoint probability (0: the paper, whose genomes only grow)
+    remove_prob: float = 0.05  # remove-waypoint probability (0: the paper, whose genomes only grow)
     crossover_prob: float = 0.0
     archive_per_generation: int = 1
     archive_policy: str = field(default="most_novel_unseen")
     tie_break: str = "shortest"  # among equal novelty: fewer waypoints, then newest ("oldest": the paper)
     mutation_scope: str = "waypoint"  # noise on one waypoint drawn at random ("genome": on all, the paper)
     reuse_clones: bool = True
-    max_waypoints: int | None = None  # extension stops at this many waypoints (None: unbounded, the paper)
+    # extension stops at this many waypoints (None or 0: unbounded, the paper); with removal, a run's cost per
+    # episode stays flat (docs/departures.md)
+    max_waypoints: int | None = 8
     # with varied starts: a child runs from its parent's start, or, with this probability, from a new one; which
     # children may draw one: "new_genomes" (those whose genome differs from their parent's: a copy of a parent
     # stays a clone, free) or "all_children" (copies too: the same movement from a new start); what it draws:
@@ -129,8 +131,11 @@ class NovEBConfig:
 
 def upgrade_stored_config(config: dict[str, Any]) -> dict[str, Any]:
     """A NovEB section stored by an earlier version, in this version's terms, meaning the same search: the
-    number of children was ``population * (1 / keep_fraction - 1)``, and generations did not overlap."""
+    number of children was ``population * (1 / keep_fraction - 1)``, generations did not overlap, and genomes grew
+    without bound and never shrank."""
     config = dict(config)
+    config.setdefault("remove_prob", 0.0)  # stored before removal existed: genomes only grew ...
+    config.setdefault("max_waypoints", None)  # ... without bound
     if "keep_fraction" in config:
         kept = float(config.pop("keep_fraction"))
         config.setdefault("children", int(round(int(config.get("population", 12)) * (1.0 / kept - 1.0))))

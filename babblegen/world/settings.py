@@ -74,7 +74,7 @@ class WorldSettings:
     fps: int = 10  # recorded frames per second of simulated time
     control_freq: int = 20  # joint targets per second
     sim_freq: int = 100  # physics steps per second
-    max_joint_speed: float = 1.5  # rad/s on the fastest joint along the path
+    max_joint_speed: float = 2.0  # rad/s on the fastest joint along the path: the arm's limit (its URDF's)
     dwell_seconds: float = 0.2  # pause at the final waypoint before returning
     # how the arm goes home after the dwell: "retrace" (back through every waypoint) or "direct" (a straight line
     # in joint space, where it is collision-free with the table and the robot, else back along the path)
