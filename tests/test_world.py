@@ -390,3 +390,25 @@ def test_a_direct_return_home_is_shorter_and_ends_home(world):
             np.testing.assert_array_equal(getattr(c.frames, key), getattr(d.frames, key))
     finally:
         direct.close()
+
+
+def test_a_movement_out_longer_than_max_move_seconds_is_refused_after_planning(world, monkeypatch):
+    """The bound on an episode's cost: the path out is planned and timed at the arm's speed; longer than
+    `max_move_seconds`, the attempt is infeasible ("too_long") without being simulated."""
+    import dataclasses
+
+    tour = waypoints(world, np.array([[0.55, 0.35, 1.05], [0.75, 0.0, 1.1], [0.55, -0.35, 1.05]]))
+    executed = world.rollout(tour)
+    assert executed.feasible, executed.reason
+    # its movement out in control steps: the planned path out (retraced back), timed at the arm's speed
+    moving = len(world._timed_path(executed.joint_path[: (len(executed.joint_path) + 1) // 2]))
+    assert moving > 10
+    s = world.settings
+    monkeypatch.setattr(world, "settings", dataclasses.replace(s, max_move_seconds=(moving - 1) / s.control_freq))
+    refused = world.rollout(tour)
+    assert (refused.feasible, refused.reason, refused.frames) == (False, "too_long", None)
+    assert "sim" not in refused.timings
+    monkeypatch.setattr(world, "settings", dataclasses.replace(s, max_move_seconds=moving / s.control_freq))
+    again = world.rollout(tour)
+    assert again.feasible
+    np.testing.assert_array_equal(again.frames.state, executed.frames.state)

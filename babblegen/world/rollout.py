@@ -13,6 +13,7 @@ REASONS = {
     "no_ik": "inverse kinematics found no joint configuration for a target",
     "target_in_collision": "every configuration reaching a target collides with the table, floor or robot",
     "no_plan": "the planner found no collision-free path in its time limit",
+    "too_long": "the movement out would take longer than max_move_seconds at the arm's speed",
     "start_not_at_rest": "the drawn start's objects were still moving when its settling time ran out",
     "start_off_table": "an object of the drawn start left the table while it settled",
 }

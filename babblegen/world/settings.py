@@ -75,6 +75,9 @@ class WorldSettings:
     control_freq: int = 20  # joint targets per second
     sim_freq: int = 100  # physics steps per second
     max_joint_speed: float = 2.0  # rad/s on the fastest joint along the path: the arm's limit (its URDF's)
+    # the longest movement out (planned, at max_joint_speed) a rollout executes: longer ones are infeasible
+    # ("too_long"), found by planning alone; it bounds an episode's frames, and so its cost (0: no bound, the paper)
+    max_move_seconds: float = 4.0
     dwell_seconds: float = 0.2  # pause at the final waypoint before returning
     # how the arm goes home after the dwell: "retrace" (back through every waypoint) or "direct" (a straight line
     # in joint space, where it is collision-free with the table and the robot, else back along the path)
@@ -102,6 +105,8 @@ class WorldSettings:
             raise ValueError("the cameras must include 'head', the behaviour camera the search looks through")
         if len(set(names)) != len(names):
             raise ValueError(f"camera names must differ, got {names}")
+        if not self.max_move_seconds >= 0:
+            raise ValueError(f"max_move_seconds must be >= 0 (0: no bound), got {self.max_move_seconds}")
         if self.return_home not in RETURNS_HOME:
             raise ValueError(f"unknown return_home {self.return_home!r}; choose one of: {', '.join(RETURNS_HOME)}")
         if self.starts not in START_MODES:

@@ -254,6 +254,9 @@ class World:
             return Rollout(command, False, reason, ee_targets=targets, timings=timings)
         s = self.settings
         out = self._timed_path(out_path)
+        if s.max_move_seconds and len(out) > s.max_move_seconds * s.control_freq + 1e-9:
+            timings["total"] = time.perf_counter() - t_start
+            return Rollout(command, False, "too_long", ee_targets=targets, timings=timings)
         dwell = np.repeat(out[-1:], max(int(round(s.dwell_seconds * s.control_freq)), 0), axis=0)
         home_path = self._way_home(out_path)
         back = self._timed_path(home_path)
