@@ -7,6 +7,12 @@ share of the run's time: 1 - (executed episodes/s with recordings) / (without), 
 
     python benchmarks/bench_recordings.py --attempts 240 --rounds 2
     python benchmarks/bench_recordings.py --existing runs/base8000     # a finished run's recordings and dataset
+    python benchmarks/bench_recordings.py --sink-cost runs/final8000 --episodes 200
+
+``--sink-cost DIR``: the recording's own work per episode, timed alone on a finished run's episodes (read back from
+its dataset): the worker's JPEG encoding of the logged frames and the coordinator's columns and file writing, for
+each mode, against the run's wall seconds per executed episode (its sidecar's write times): the recordings' share
+of the run's time, without the noise of timing whole runs.
 """
 
 from __future__ import annotations
@@ -48,6 +54,83 @@ def sizes(out: Path) -> dict[str, float]:
     }
 
 
+def sink_cost(root: Path, n_episodes: int) -> None:
+    """Time the recording's work on ``n_episodes`` episodes of a finished run, per mode."""
+    import time
+    import uuid
+    from types import SimpleNamespace
+
+    from babblegen.exporters.lerobot import load_dataset
+    from babblegen.exporters.rerun.columns import EpisodeColumns, EpisodeData, JpegFrames
+    from babblegen.exporters.rerun.layout import new_recording
+    from babblegen.exporters.rerun.scene import Scene
+    from babblegen.exporters.rerun.view import _column, _episode_images
+    from babblegen.exporters.sidecar import read_attempts, read_run_info
+
+    info, rows = read_run_info(root), read_attempts(root)
+    ds = load_dataset(root, info["repo_id"])
+    scene = Scene(info["task"], info.get("joint_names"))
+    table = ds.hf_dataset.with_format("arrow")[:]
+    names = ("observation.state", "observation.ee_pos", "observation.environment_state", "observation.contacts")
+    data = {k: _column(table, k) for k in (*names, "timestamp", "index")}
+    total = ds.meta.total_episodes
+    episodes = np.linspace(0, total - 1, min(n_episodes, total)).astype(int)
+    loaded = []
+    for e in episodes:
+        meta = ds.meta.episodes[int(e)]
+        a, b = int(meta["dataset_from_index"]), int(meta["dataset_to_index"])
+        views = _episode_images(ds, table, int(e), slice(a, b), data["timestamp"][a:b])
+        loaded.append((int(e), a, b, views))
+    executed = [r for r in rows if r["feasible"]]
+    run_s = (rows[-1]["timings"]["written_at"] - rows[0]["timings"]["written_at"]) / max(1, len(executed))
+    frames = sum(b - a for _, a, b, _ in loaded)
+    print(f"{len(loaded)} episodes, {frames} frames; the run took {run_s * 1000:.0f} ms of wall time per episode")
+    n_obj = len(scene.object_names)
+    for mode in ("ends", "all"):
+        jpeg = JpegFrames(frames=mode)
+        with tempfile.TemporaryDirectory() as tmp:
+            rec = new_recording(f"bench-{uuid.uuid4()}")
+            rec.save(Path(tmp) / "bench.rrd")
+            columns = EpisodeColumns(scene, mode)
+            t_prepare = t_log = 0.0
+            for e, a, b, views in loaded:
+                head = views["head"]
+                t0 = time.perf_counter()
+
+                # what a worker prepares from: the episode's images by camera and kind
+                others = {
+                    c: {k: v for k, v in kinds.items() if (c, k) != ("head", "rgb")} for c, kinds in views.items()
+                }
+                prepared = jpeg(SimpleNamespace(images=head["rgb"], views=others))
+                t_prepare += time.perf_counter() - t0
+                t0 = time.perf_counter()
+                columns.add(
+                    EpisodeData(
+                        episode_index=e,
+                        state=data["observation.state"][a:b],
+                        ee_pos=data["observation.ee_pos"][a:b],
+                        object_poses=data["observation.environment_state"][a:b].reshape(b - a, n_obj, 7),
+                        contacts=data["observation.contacts"][a:b],
+                        fps=float(ds.fps),
+                        views=prepared,
+                        start_index=int(data["index"][a]),
+                    )
+                )
+                t_log += time.perf_counter() - t0
+            t0 = time.perf_counter()
+            columns.send(rec)
+            rec.flush()
+            rec.disconnect()
+            t_log += time.perf_counter() - t0
+            size = (Path(tmp) / "bench.rrd").stat().st_size
+        per = (t_prepare + t_log) / len(loaded)
+        print(
+            f"{mode}: {t_prepare / len(loaded) * 1000:.1f} ms JPEGs (worker) + {t_log / len(loaded) * 1000:.1f} ms "
+            f"columns and file (coordinator) per episode = {per / run_s:.1%} of the run's time per episode; "
+            f"{size / frames:.0f} B/frame"
+        )
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--attempts", type=int, default=240)
@@ -55,7 +138,12 @@ def main() -> None:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--modes", nargs="+", default=list(MODES), choices=list(MODES))
     p.add_argument("--existing", type=Path, help="report a finished run's recordings instead of running")
+    p.add_argument("--sink-cost", type=Path, help="time the recording's work on a finished run's episodes")
+    p.add_argument("--episodes", type=int, default=200, help="episodes for --sink-cost")
     args = p.parse_args()
+    if args.sink_cost:
+        sink_cost(args.sink_cost, args.episodes)
+        return
     if args.existing:
         print(json.dumps(sizes(args.existing), indent=1))
         return
