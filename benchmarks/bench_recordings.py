@@ -12,7 +12,9 @@ share of the run's time: 1 - (executed episodes/s with recordings) / (without), 
 ``--sink-cost DIR``: the recording's own work per episode, timed alone on a finished run's episodes (read back from
 its dataset): the worker's JPEG encoding of the logged frames and the coordinator's columns and file writing, for
 each mode, against the run's wall seconds per executed episode (its sidecar's write times): the recordings' share
-of the run's time, without the noise of timing whole runs.
+of the run's time, without the noise of timing whole runs. Opening the recording and its final flush are counted,
+spread over the episodes timed, as a run spreads them over a commit segment's (about 300 episodes in a
+paper-sized run): time 150 or more, on an otherwise idle machine.
 """
 
 from __future__ import annotations
@@ -61,10 +63,10 @@ def sink_cost(root: Path, n_episodes: int) -> None:
     from types import SimpleNamespace
 
     from babblegen.exporters.lerobot import load_dataset
-    from babblegen.exporters.rerun.columns import EpisodeColumns, EpisodeData, JpegFrames
+    from babblegen.exporters.rerun.columns import EpisodeColumns, JpegFrames
     from babblegen.exporters.rerun.layout import new_recording
     from babblegen.exporters.rerun.scene import Scene
-    from babblegen.exporters.rerun.view import _column, _episode_images
+    from babblegen.exporters.rerun.view import _column, _episode_images, episode_data
     from babblegen.exporters.sidecar import read_attempts, read_run_info
 
     info, rows = read_run_info(root), read_attempts(root)
@@ -104,18 +106,7 @@ def sink_cost(root: Path, n_episodes: int) -> None:
                 prepared = jpeg(SimpleNamespace(images=head["rgb"], views=others))
                 t_prepare += time.perf_counter() - t0
                 t0 = time.perf_counter()
-                columns.add(
-                    EpisodeData(
-                        episode_index=e,
-                        state=data["observation.state"][a:b],
-                        ee_pos=data["observation.ee_pos"][a:b],
-                        object_poses=data["observation.environment_state"][a:b].reshape(b - a, n_obj, 7),
-                        contacts=data["observation.contacts"][a:b],
-                        fps=float(ds.fps),
-                        views=prepared,
-                        start_index=int(data["index"][a]),
-                    )
-                )
+                columns.add(episode_data(data, e, slice(a, b), n_obj, float(ds.fps), prepared))
                 t_log += time.perf_counter() - t0
             t0 = time.perf_counter()
             columns.send(rec)

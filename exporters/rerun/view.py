@@ -77,6 +77,35 @@ def _episode_images(ds, table, episode: int, rows: slice, timestamps: np.ndarray
     return out
 
 
+def episode_data(
+    data: dict[str, np.ndarray],
+    episode: int,
+    rows: slice,
+    n_objects: int,
+    fps: float,
+    views: dict[str, dict[str, Any]] | None,
+    row: dict[str, Any] | None = None,
+) -> EpisodeData:
+    """One episode read back from the dataset's columns (``data``, sliced at ``rows``), with its images and, given
+    its sidecar row, its attempt and commanded waypoints."""
+    row = row or {}
+    targets = row.get("ee_targets")
+    n = rows.stop - rows.start
+    return EpisodeData(
+        episode_index=episode,
+        state=data["observation.state"][rows],
+        ee_pos=data["observation.ee_pos"][rows],
+        object_poses=data["observation.environment_state"][rows].reshape(n, n_objects, 7),
+        contacts=data["observation.contacts"][rows],
+        fps=fps,
+        views=views,
+        start_index=int(data["index"][rows.start]),
+        timestamps=data["timestamp"][rows],
+        attempt=row.get("attempt"),
+        ee_targets=None if targets is None else np.asarray(targets),
+    )
+
+
 def view_dataset(
     root: str | Path,
     episodes: list[int] | None = None,
@@ -149,22 +178,7 @@ def view_dataset(
             except Exception as err:  # noqa: BLE001  (the rest of the episode is still worth showing)
                 decode_failed = True
                 echo(f"babblegen: warning: cannot decode the camera videos ({err}); logging without images")
-        targets = row.get("ee_targets")
-        batch.add(
-            EpisodeData(
-                episode_index=e,
-                state=data["observation.state"][a:b],
-                ee_pos=data["observation.ee_pos"][a:b],
-                object_poses=data["observation.environment_state"][a:b].reshape(b - a, n_obj, 7),
-                contacts=data["observation.contacts"][a:b],
-                fps=float(ds.fps),
-                views=views,
-                start_index=int(data["index"][a]),
-                timestamps=data["timestamp"][a:b],
-                attempt=row.get("attempt"),
-                ee_targets=None if targets is None else np.asarray(targets),
-            )
-        )
+        batch.add(episode_data(data, e, slice(a, b), n_obj, float(ds.fps), views, row))
         if batch.n_frames >= MAX_BUFFERED_FRAMES:
             batch.send(rec)
     batch.send(rec)
