@@ -318,21 +318,30 @@ def test_a_damaged_checkpoint_falls_back_to_the_commit_point_before_it(small_run
     out = tmp_path / "damaged"
     proc = _spawn(out, "--seed", "2")
     deadline = time.time() + 240
-    while not (out / "babblegen" / "checkpoint.prev.json").exists():  # two commit points made
+    sdir = out / "babblegen"
+    while not ((sdir / "checkpoint.prev.json").exists() and (sdir / "checkpoint.json").exists()):  # two made
         assert proc.poll() is None and time.time() < deadline, "no second commit point"
         time.sleep(0.05)
     os.kill(proc.pid, signal.SIGKILL)
     proc.wait()
-    sdir = out / "babblegen"
-    state = (sdir / "checkpoint.json").read_bytes()
-    assert state.startswith(b'{"format":"babblegen-state/1"'), "plain JSON, nothing to unpickle"
-    spare = tmp_path / "spare"
+    assert (sdir / "checkpoint.prev.json").read_bytes().startswith(b'{"format":"babblegen-state/1"'), "plain JSON"
+    spare, missing = tmp_path / "spare", tmp_path / "missing"
     shutil.copytree(out, spare)
+    shutil.copytree(out, missing)
 
-    (sdir / "checkpoint.json").write_bytes(state[: len(state) // 2])  # torn
+    if (sdir / "checkpoint.json").exists():
+        state = (sdir / "checkpoint.json").read_bytes()
+        (sdir / "checkpoint.json").write_bytes(state[: len(state) // 2])  # torn
+    # else the kill fell between a commit point's two renames (the last one moved aside, the new one not yet in
+    # place): a missing last commit point, which falls back the same way
     assert generate(out, "--seed", "2", "--resume") == 0
     assert "resuming from the commit point before it" in capsys.readouterr().err
     assert comparable(read_attempts(out)) == comparable(read_attempts(small_run)), "exact all the same"
+
+    (missing / "babblegen" / "checkpoint.json").unlink(missing_ok=True)  # a kill between a commit's two renames
+    assert generate(missing, "--seed", "2", "--resume") == 0
+    assert "resuming from the commit point before it" in capsys.readouterr().err
+    assert comparable(read_attempts(missing)) == comparable(read_attempts(small_run))
 
     for name in ("checkpoint.json", "checkpoint.prev.json"):
         (spare / "babblegen" / name).write_bytes(b"\x80\x04garbage")
