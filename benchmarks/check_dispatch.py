@@ -31,6 +31,8 @@ SETTINGS: dict[str, dict[str, str | None]] = {
     "lavapipe_128": {"GALLIUM_OVERRIDE_CPU_CAPS": "sse4.1", "LP_NATIVE_VECTOR_WIDTH": "128"},
     "lavapipe_256": {"LP_NATIVE_VECTOR_WIDTH": "256"},
     "lavapipe_avx": {"GALLIUM_OVERRIDE_CPU_CAPS": "avx"},
+    # a CPU with SSE4.1 alone whose lavapipe is told to use 256-bit vectors anyway
+    "lavapipe_sse41_at_256": {"GALLIUM_OVERRIDE_CPU_CAPS": "sse4.1", "LP_NATIVE_VECTOR_WIDTH": "256"},
 }
 IGNORED = {"timings", "worker_failures"}
 

@@ -47,6 +47,7 @@ ENV = "observation.environment_state"
 BASELINE = "nothing moves"
 DISP_SCALE = 10.0  # displacements are learned in decimetres, so both losses have similar magnitudes
 CLIP = 5.0  # normalised inputs are clipped to +-CLIP standard deviations of the training data
+ARM_LINKS = 4  # the objects model sees the paths of the arm's last link origins: forearm, wrist, tool
 
 
 @dataclass
@@ -100,37 +101,54 @@ def mask_ids(features: dict, objects: list[str], root: Path) -> list[int]:
     return [by_name[o] for o in objects]
 
 
-def tool_path_maps(root: Path, ds, actions: list[np.ndarray], grid: int) -> np.ndarray:
-    """(E, 2, grid, grid): where each episode's commanded tool path (the arm's forward kinematics of ``action``)
-    lies in the head camera's image, as the share of the path's points per cell, for the whole path and for the
-    part within ``LOW`` of the table top (where it can push objects). Put beside the object maps, a convolution
-    can see where the path crosses an object."""
+def arm_kinematics(root: Path):
+    """The run's arm as forward kinematics (the robot named in ``run.json``)."""
     from babblegen.tasks import get_robot
     from babblegen.world.kinematics import ArmKinematics, UrdfModel
 
     run = json.loads((root / "babblegen" / "run.json").read_text())
     robot = get_robot(run["task"]["robot_uid"])
-    kin = ArmKinematics(UrdfModel.load(robot.urdf), robot.base_link, robot.tool_link)
+    return ArmKinematics(UrdfModel.load(robot.urdf), robot.base_link, robot.tool_link)
+
+
+def table_top(root: Path) -> float:
+    """Height of the table's top, metres (from ``run.json``)."""
+    table = json.loads((root / "babblegen" / "run.json").read_text())["task"]["table"]
+    return table["center"][2] + table["half_extents"][2]
+
+
+def arm_paths(root: Path, actions: list[np.ndarray], steps: int) -> np.ndarray:
+    """(E, steps, ARM_LINKS, 3): where the last ``ARM_LINKS`` link origins of the arm (forearm to tool) are along
+    each episode's commanded trajectory, world frame: the parts of the arm that sweep over the table."""
+    kin = arm_kinematics(root)
+    return np.stack([kin.link_frames(resample(a, steps))[1][:, -ARM_LINKS:] for a in actions])
+
+
+def path_maps(root: Path, ds, points: np.ndarray, grid: int, presence: bool = False) -> np.ndarray:
+    """(E, 2, grid, grid): where each episode's points (E, P, 3), world frame, lie in the head camera's image, as
+    the share of the points per cell (with ``presence``, 1 in every cell a point falls in), all of them and those
+    within ``LOW`` of the table top (where they can push objects). Put beside the object maps, a convolution can
+    see where a path crosses an object."""
     info = ds.meta.features[HEAD]["info"]
     k, world2cam = np.asarray(info["intrinsics"]), np.linalg.inv(np.asarray(info["cam2world"]))
     height, width = ds.meta.features[HEAD]["shape"][:2]
-    table = run["task"]["table"]
-    table_top = table["center"][2] + table["half_extents"][2]
-    out = np.zeros((len(actions), 2, grid, grid), dtype=np.float32)
-    for e, action in enumerate(actions):
-        points = kin.tool_position(resample(action, 64))
-        cam = points @ world2cam[:3, :3].T + world2cam[:3, 3]
+    top = table_top(root)
+    out = np.zeros((len(points), 2, grid, grid), dtype=np.float32)
+    for e, p in enumerate(points):
+        cam = p @ world2cam[:3, :3].T + world2cam[:3, 3]
         uv = cam @ k.T
         col = np.clip((uv[:, 0] / uv[:, 2] / width * grid).astype(int), 0, grid - 1)
         row = np.clip((uv[:, 1] / uv[:, 2] / height * grid).astype(int), 0, grid - 1)
-        low = points[:, 2] < table_top + LOW
-        np.add.at(out[e, 0], (row, col), 1.0 / len(points))
-        np.add.at(out[e, 1], (row[low], col[low]), 1.0 / len(points))
-    return out
+        low = p[:, 2] < top + LOW
+        np.add.at(out[e, 0], (row, col), 1.0 / len(p))
+        np.add.at(out[e, 1], (row[low], col[low]), 1.0 / len(p))
+    return np.minimum(np.ceil(out), 1.0) if presence else out
 
 
-def load_episodes(root: Path, steps: int, start: str, grid: int, threshold: float, path: bool = False) -> Episodes:
-    """Read a dataset and turn each episode into one example (see the module docstring)."""
+def load_episodes(root: Path, steps: int, start: str, grid: int, threshold: float, model: str = "mlp") -> Episodes:
+    """Read a dataset and turn each episode into one example (see the module docstring). ``model`` adds what its
+    network needs after the start: the tool path's maps (conv), the arm's path as maps (objects, masks) or as
+    points (objects, poses)."""
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
     repo_id = json.loads((root / "babblegen" / "run.json").read_text())["repo_id"]
@@ -151,13 +169,21 @@ def load_episodes(root: Path, steps: int, start: str, grid: int, threshold: floa
         frames = ds.hf_dataset.select(first.tolist()).select_columns([MASKS]).with_format("numpy")[MASKS]
         maps = [occupancy(np.asarray(f).reshape(f.shape[:2]), ids, grid).ravel() for f in frames]
         x = np.concatenate([x, np.stack(maps)], axis=1)
-        if path:
-            x = np.concatenate([x, tool_path_maps(root, ds, [action[r] for r in rows], grid).reshape(len(x), -1)], 1)
+        if model == "conv":
+            tool = arm_paths(root, [action[r] for r in rows], 64)[:, :, -1]
+            x = np.concatenate([x, path_maps(root, ds, tool, grid).reshape(len(x), -1)], 1)
+        elif model == "objects":
+            arm = arm_paths(root, [action[r] for r in rows], 64).reshape(len(x), -1, 3)
+            x = np.concatenate([x, path_maps(root, ds, arm, grid, presence=True).reshape(len(x), -1)], 1)
     elif start == "poses":
         pose = env[first]
         angle = yaw(pose[..., 3:7])
         start_xy_yaw = np.stack([pose[..., 0], pose[..., 1], np.cos(angle), np.sin(angle)], axis=2)
         x = np.concatenate([x, start_xy_yaw.reshape(len(x), -1)], axis=1)
+        if model == "objects":
+            arm = arm_paths(root, [action[r] for r in rows], steps)
+            arm[..., 2] -= table_top(root)  # heights above the table top
+            x = np.concatenate([x, arm.reshape(len(x), -1)], axis=1)
     moved = np.linalg.norm(env[last, :, :3] - env[first, :, :3], axis=2) > threshold
     return Episodes(x, env[last, :, :2] - env[first, :, :2], moved, genome_keys(root, episodes), objects)
 
@@ -215,30 +241,102 @@ class ConvWorldModel(nn.Module):
         return out[..., :2], out[..., 2]
 
 
+class ObjectMapsModel(nn.Module):
+    """One network for every object, shared: object k's occupancy map, the other objects' maps summed and the arm's
+    path maps (all of it, its low part) through a convolutional network, with which object it is, predict k's
+    (dx, dy) and "moves" logit. Whatever holds for one object at one place is learned for all objects and places:
+    what a model must find for a new start is where the arm's path meets an object's map."""
+
+    def __init__(self, n_trajectory: int, n_objects: int, grid: int, hidden: int = 128):
+        super().__init__()
+        self.n_trajectory, self.n_objects, self.grid = n_trajectory, n_objects, grid
+        self.conv = nn.Sequential(
+            nn.Conv2d(4, 16, 3, padding=1), nn.ReLU(),
+            nn.Conv2d(16, 32, 3, padding=1, stride=2), nn.ReLU(),
+            nn.Conv2d(32, 32, 3, padding=1, stride=2), nn.ReLU(),
+            nn.AdaptiveAvgPool2d(4), nn.Flatten(),
+        )  # fmt: skip
+        self.head = nn.Sequential(
+            nn.Linear(32 * 16 + n_objects, hidden),
+            nn.ReLU(),
+            nn.Linear(hidden, hidden),
+            nn.ReLU(),
+            nn.Linear(hidden, 3),
+        )
+
+    def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        b, k, g = len(x), self.n_objects, self.grid
+        maps = x[:, self.n_trajectory :].reshape(b, k + 2, g, g)
+        objects, path = maps[:, :k], maps[:, k:]
+        others = objects.sum(dim=1, keepdim=True) - objects
+        channels = torch.cat(
+            [objects.unsqueeze(2), others.unsqueeze(2), path.unsqueeze(1).expand(b, k, 2, g, g)], dim=2
+        ).reshape(b * k, 4, g, g)
+        which = torch.eye(k).expand(b, k, k).reshape(b * k, k)
+        out = self.head(torch.cat([self.conv(channels), which], dim=1)).view(b, k, 3)
+        return out[..., :2], out[..., 2]
+
+
+class ObjectPosesModel(nn.Module):
+    """One network for every object, shared: the arm's path (``ARM_LINKS`` link origins at each time step) relative
+    to object k's start position, their heights above the table, k's own position and yaw, where the other objects
+    stand relative to it, and which object it is, predict k's (dx, dy) and "moves" logit."""
+
+    def __init__(self, n_trajectory: int, n_objects: int, steps: int, hidden: int = 128):
+        super().__init__()
+        self.n_trajectory, self.n_objects, self.steps = n_trajectory, n_objects, steps
+        n_in = steps * ARM_LINKS * 3 + 4 + 2 * n_objects + n_objects
+        self.net = nn.Sequential(
+            nn.Linear(n_in, hidden), nn.ReLU(), nn.Linear(hidden, hidden), nn.ReLU(), nn.Linear(hidden, 3)
+        )
+
+    def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        b, k = len(x), self.n_objects
+        start = x[:, self.n_trajectory : self.n_trajectory + 4 * k].reshape(b, k, 4)
+        arm = x[:, self.n_trajectory + 4 * k :].reshape(b, 1, self.steps * ARM_LINKS, 3)
+        relative = arm[..., :2] - start[:, :, None, :2]  # (b, k, points, 2)
+        height = arm[..., 2:].expand(b, k, -1, 1)
+        others = start[:, None, :, :2] - start[:, :, None, :2]  # (b, k, k, 2)
+        which = torch.eye(k).expand(b, k, k)
+        features = torch.cat(
+            [10 * torch.cat([relative, height], dim=3).flatten(2), start, 10 * others.flatten(2), which], dim=2
+        )
+        out = self.net(features).view(b, k, 3)
+        return out[..., :2], out[..., 2]
+
+
 def normalise(x: np.ndarray, mean: np.ndarray, std: np.ndarray) -> torch.Tensor:
     """Inputs standardised with the training data's statistics and clipped, so that inputs that barely varied in
     training (a map cell an object rarely covered) cannot swamp the model on other data."""
     return torch.tensor(np.clip((x - mean) / std, -CLIP, CLIP), dtype=torch.float32)
 
 
+def build(net: dict | None, n_in: int, n_objects: int, hidden: int) -> nn.Module:
+    """The network ``net`` names (``{"kind": "conv" | "object_maps" | "object_poses", ...its arguments}``), or the
+    MLP for None."""
+    if net is None:
+        return WorldModel(n_in, n_objects, hidden)
+    kinds = {"conv": ConvWorldModel, "object_maps": ObjectMapsModel, "object_poses": ObjectPosesModel}
+    args = {k: v for k, v in net.items() if k != "kind"}
+    return kinds[net["kind"]](**args, n_objects=n_objects, hidden=hidden)
+
+
 def train(
-    data: Episodes, epochs: int, seed: int, hidden: int, batch: int = 32, conv: dict | None = None
+    data: Episodes, epochs: int, seed: int, hidden: int, batch: int = 32, net: dict | None = None
 ) -> tuple[nn.Module, np.ndarray, np.ndarray]:
-    """Fit a model (with ``conv``, `ConvWorldModel` with those arguments; else the MLP); returns it with the input
-    normalisation (mean, std) taken from its own training data."""
+    """Fit a model (the network ``net`` names, see `build`); returns it with the input normalisation (mean, std)
+    taken from its own training data. Networks other than the MLP see everything after the trajectory as it is
+    (maps as shares of a cell, positions in metres), so that geometry means the same on any data."""
     torch.manual_seed(seed)
     rng = np.random.default_rng(seed)
     mean, std = data.x.mean(axis=0), data.x.std(axis=0)
     std[std < 1e-6] = 1.0  # an input constant in training (every start the same) is not blown up at test time
-    if conv is not None:  # the maps stay shares of a cell, the same scale everywhere in the image
-        mean[conv["n_trajectory"] :], std[conv["n_trajectory"] :] = 0.0, 1.0
+    if net is not None:
+        mean[net["n_trajectory"] :], std[net["n_trajectory"] :] = 0.0, 1.0
     xt = normalise(data.x, mean, std)
     dt = torch.tensor(data.disp * DISP_SCALE, dtype=torch.float32)
     mt = torch.tensor(data.moved, dtype=torch.float32)
-    if conv is not None:
-        model: nn.Module = ConvWorldModel(**conv, n_objects=dt.shape[1], hidden=hidden)
-    else:
-        model = WorldModel(xt.shape[1], dt.shape[1], hidden)
+    model = build(net, xt.shape[1], dt.shape[1], hidden)
     opt = torch.optim.AdamW(model.parameters(), lr=1e-3, weight_decay=1e-3)
     bce = nn.BCEWithLogitsLoss()
     for _ in range(epochs):
@@ -279,7 +377,7 @@ def experiment(
     epochs: int,
     seed: int,
     hidden: int,
-    conv: dict | None = None,
+    net: dict | None = None,
 ) -> dict[str, dict[str, dict[str, list[float]]]]:
     """Per test set, per model (the baseline, then every source), each score's value in every repeat."""
     repeats = max(len(v) for v in sources.values())
@@ -291,7 +389,7 @@ def experiment(
         for name, parts in sources.items():
             data = parts[r % len(parts)]
             idx = np.sort(np.random.default_rng(seed + r).permutation(len(data.x))[:n])
-            model, mean, std = train(data.take(idx), epochs, seed + r, hidden, conv=conv)
+            model, mean, std = train(data.take(idx), epochs, seed + r, hidden, net=net)
             for test, truth in tests.items():
                 for key, value in scores(*predict(model, mean, std, truth.x), truth).items():
                     out[test][name][key].append(value)
@@ -343,10 +441,12 @@ def main() -> None:
     parser.add_argument("--start", choices=("masks", "poses", "none"), default="masks", help="[default: masks]")
     parser.add_argument(
         "--model",
-        choices=("mlp", "conv"),
+        choices=("mlp", "conv", "objects"),
         default="mlp",
         help="mlp: every input flattened; conv: the start's object maps and the commanded tool path's maps in the "
-        "head camera's view through a convolutional network (needs --start masks) [default: mlp]",
+        "head camera's view through a convolutional network (needs --start masks); objects: one network shared by "
+        "every object, that sees the arm's path beside that object's map (--start masks) or relative to its "
+        "position (--start poses) [default: mlp]",
     )
     parser.add_argument("--n", type=int, default=None, help="training episodes per source [default: smallest]")
     parser.add_argument("--epochs", type=int, default=300)
@@ -367,6 +467,8 @@ def main() -> None:
     test_dirs = {d.resolve() for _, dirs in args.test for d in dirs}
     if args.model == "conv" and args.start != "masks":
         parser.error("--model conv looks at the start's masks: use --start masks")
+    if args.model == "objects" and args.start == "none":
+        parser.error("--model objects looks at each object's start: use --start masks or poses")
     if clash := sorted(str(d) for _, dirs in args.train for d in dirs if d.resolve() in test_dirs):
         parser.error(f"trained on and tested on: {clash}")
 
@@ -378,7 +480,7 @@ def main() -> None:
     def load(root: Path) -> Episodes:
         if root.resolve() not in cache:
             cache[root.resolve()] = load_episodes(
-                root, args.steps, args.start, args.grid, args.moved_threshold, path=args.model == "conv"
+                root, args.steps, args.start, args.grid, args.moved_threshold, model=args.model
             )
             print(describe(root, cache[root.resolve()]))
         return cache[root.resolve()]
@@ -407,11 +509,15 @@ def main() -> None:
         f"{repeats} repeats"
     )
 
-    conv = None
+    n_objects = len(next(iter(tests.values())).objects)
+    net = None
     if args.model == "conv":
-        n_objects = len(next(iter(tests.values())).objects)
-        conv = {"n_trajectory": args.steps * 7, "channels": n_objects + 2, "grid": args.grid}
-    results = experiment(sources, tests, n, args.epochs, args.seed, args.hidden, conv)
+        net = {"kind": "conv", "n_trajectory": args.steps * 7, "channels": n_objects + 2, "grid": args.grid}
+    elif args.model == "objects" and args.start == "masks":
+        net = {"kind": "object_maps", "n_trajectory": args.steps * 7, "grid": args.grid}
+    elif args.model == "objects":
+        net = {"kind": "object_poses", "n_trajectory": args.steps * 7, "steps": args.steps}
+    results = experiment(sources, tests, n, args.epochs, args.seed, args.hidden, net)
     for test, by_model in results.items():
         truth = tests[test]
         print(

@@ -144,6 +144,63 @@ def test_the_convolutional_model_learns_where_the_path_crosses_an_object(wm):
         x = np.concatenate([rng.normal(size=(n, 7 * steps)), images.reshape(n, -1)], axis=1)
         return wm.Episodes(x, disp, hit[:, None], np.array([f"{seed}:{i}" for i in range(n)]), ["o"])
 
-    conv = {"n_trajectory": 14, "channels": 3, "grid": 8}
-    out = wm.experiment({"a": [scenes(300, 1)]}, {"t": scenes(200, 2)}, n=300, epochs=40, seed=0, hidden=32, conv=conv)
+    net = {"kind": "conv", "n_trajectory": 14, "channels": 3, "grid": 8}
+    out = wm.experiment({"a": [scenes(300, 1)]}, {"t": scenes(200, 2)}, n=300, epochs=40, seed=0, hidden=32, net=net)
+    assert out["t"]["a"]["f1"][0] > 0.8
+
+
+def test_the_object_maps_model_learns_one_rule_for_every_object(wm):
+    """Two objects, each in a random cell of an 8 x 8 map, and an arm path through some cells, low (at the objects'
+    height) or high: an object moves when the low path crosses its cell. One network shared by both objects learns
+    it from both; the test scenes are new."""
+
+    def scenes(n: int, seed: int):
+        rng = np.random.default_rng(seed)
+        grid, steps = 8, 2
+        maps = np.zeros((n, 4, grid, grid))  # object 0, object 1, path, low path
+        moved = np.zeros((n, 2), dtype=bool)
+        for i in range(n):
+            cells = rng.permutation(grid * grid)[:2]
+            for k, c in enumerate(cells):
+                maps[i, k].flat[c] = 1.0
+            crossed = cells[rng.integers(0, 2)] if rng.random() < 0.6 else rng.integers(0, grid * grid)
+            low = rng.random() < 0.5
+            maps[i, 2].flat[crossed] = 1.0
+            maps[i, 3].flat[crossed] = float(low)
+            moved[i] = low & (cells == crossed)
+        disp = np.zeros((n, 2, 2))
+        disp[moved, 0] = 0.1
+        x = np.concatenate([rng.normal(size=(n, 7 * steps)), maps.reshape(n, -1)], axis=1)
+        return wm.Episodes(x, disp, moved, np.array([f"{seed}:{i}" for i in range(n)]), ["o0", "o1"])
+
+    net = {"kind": "object_maps", "n_trajectory": 14, "grid": 8}
+    out = wm.experiment({"a": [scenes(400, 1)]}, {"t": scenes(200, 2)}, n=400, epochs=40, seed=0, hidden=32, net=net)
+    assert out["t"]["a"]["f1"][0] > 0.8
+
+
+def test_the_object_poses_model_sees_the_arm_relative_to_each_object(wm):
+    """Objects anywhere on a 1 m square; an object moves when the arm's path passes within 5 cm of it below 5 cm
+    height. The rule holds wherever the objects stand, so the shared network learns it for new layouts."""
+    steps, n_objects = 2, 2
+
+    def scenes(n: int, seed: int):
+        rng = np.random.default_rng(seed)
+        start = np.zeros((n, n_objects, 4))
+        start[..., :2] = rng.uniform(-0.5, 0.5, (n, n_objects, 2))
+        start[..., 2] = 1.0  # yaw 0: cos, sin
+        arm = np.zeros((n, steps, wm.ARM_LINKS, 3))
+        arm[..., :2] = rng.uniform(-0.5, 0.5, (n, 1, 1, 2))
+        target = rng.integers(0, n_objects, n)
+        near = rng.random(n) < 0.6
+        arm[near, :, -1, :2] = start[near, target[near], None, :2] + rng.normal(0, 0.02, (near.sum(), steps, 2))
+        arm[..., 2] = rng.choice([0.02, 0.3], (n, 1, 1))
+        gap = np.linalg.norm(arm[:, None, :, :, :2] - start[:, :, None, None, :2], axis=-1)  # (n, k, steps, links)
+        moved = ((gap < 0.05) & (arm[:, None, ..., 2] < 0.05)).any(axis=(2, 3))
+        disp = np.zeros((n, n_objects, 2))
+        disp[moved, 0] = 0.1
+        x = np.concatenate([rng.normal(size=(n, 7 * steps)), start.reshape(n, -1), arm.reshape(n, -1)], axis=1)
+        return wm.Episodes(x, disp, moved, np.array([f"{seed}:{i}" for i in range(n)]), ["o0", "o1"])
+
+    net = {"kind": "object_poses", "n_trajectory": 14, "steps": steps}
+    out = wm.experiment({"a": [scenes(600, 1)]}, {"t": scenes(300, 2)}, n=600, epochs=60, seed=0, hidden=64, net=net)
     assert out["t"]["a"]["f1"][0] > 0.8
