@@ -4,8 +4,10 @@ settings, each in its own command (the variables are changed for that command al
     python benchmarks/check_dispatch.py --attempts 150 --seed 1 [--starts varied] [--out runs/dispatch]
 
 Settings: the machine's own environment; OpenBLAS choosing its kernels for this CPU (``OPENBLAS_CORETYPE`` and
-``OPENBLAS_L2_SIZE`` unset together); numpy without its AVX-512 code; lavapipe at 128-bit (as with SSE4.1 alone) and
-256-bit vectors, and as on a CPU with AVX but not AVX2.
+``OPENBLAS_L2_SIZE`` unset together); numpy without its AVX-512 code; lavapipe at 256-bit vectors, as on a CPU without
+AVX-512 (Mesa's "avx" override clears AVX-512 alone), and as on a CPU without AVX ("sse4.1": no AVX, AVX2 or FMA)
+at its own 128-bit vectors and told to use 256. A short run rarely shows lavapipe's rare pixel one level apart:
+benchmarks/check_render_dispatch.py re-renders thousands of recorded frames.
 For each, the first attempt whose sidecar row differs from the machine's own run and the fields that differ
 (genome, final poses, descriptor...), and whether the episodes' LeRobot frames and videos are byte-identical.
 """
@@ -25,14 +27,14 @@ SETTINGS: dict[str, dict[str, str | None]] = {
     "machine": {},
     "openblas_own_kernels": {"OPENBLAS_CORETYPE": None, "OPENBLAS_L2_SIZE": None},
     "numpy_no_avx512": {"NPY_DISABLE_CPU_FEATURES": NUMPY_NO_AVX512},
-    # lavapipe as on a CPU with SSE4.1 alone (128-bit vectors), and with AVX but not AVX2 (256-bit); the vector
-    # width alone at 128 on an AVX-512 CPU crashes Mesa 25.0's JIT-compiled shaders (heap corruption), so the CPU
-    # features it sees are lowered with it, as on such a machine
-    "lavapipe_128": {"GALLIUM_OVERRIDE_CPU_CAPS": "sse4.1", "LP_NATIVE_VECTOR_WIDTH": "128"},
+    # lavapipe as on a CPU without AVX (128-bit vectors), and without AVX-512; the vector width alone at 128 on an
+    # AVX-512 CPU crashes Mesa 25.0's JIT-compiled shaders (heap corruption), so the CPU features it sees are
+    # lowered with it, as on such a machine
+    "lavapipe_no_avx": {"GALLIUM_OVERRIDE_CPU_CAPS": "sse4.1", "LP_NATIVE_VECTOR_WIDTH": "128"},
     "lavapipe_256": {"LP_NATIVE_VECTOR_WIDTH": "256"},
-    "lavapipe_avx": {"GALLIUM_OVERRIDE_CPU_CAPS": "avx"},
-    # a CPU with SSE4.1 alone whose lavapipe is told to use 256-bit vectors anyway
-    "lavapipe_sse41_at_256": {"GALLIUM_OVERRIDE_CPU_CAPS": "sse4.1", "LP_NATIVE_VECTOR_WIDTH": "256"},
+    "lavapipe_no_avx512": {"GALLIUM_OVERRIDE_CPU_CAPS": "avx"},
+    # a CPU without AVX whose lavapipe is told to use 256-bit vectors anyway
+    "lavapipe_no_avx_at_256": {"GALLIUM_OVERRIDE_CPU_CAPS": "sse4.1", "LP_NATIVE_VECTOR_WIDTH": "256"},
 }
 IGNORED = {"timings", "worker_failures"}
 

@@ -6,8 +6,9 @@ under several lavapipe settings, each in its own command, compared pixel by pixe
 Every setting renders the same scenes: the dataset's recorded joint states and object poses, frame after frame
 (the first --frames of them), from the head camera with the run's own settings (colour, and depth and masks where
 the run records them). A rare pixel one level apart is what a short run cannot show; thousands of frames can.
-Settings: the machine's own; lavapipe as on a CPU with SSE4.1 alone (``GALLIUM_OVERRIDE_CPU_CAPS=sse4.1``, which
-picks 128-bit vectors) and the same told to use 256-bit vectors; as on a CPU with AVX but not AVX2.
+Settings: the machine's own; lavapipe as on a CPU without AVX (``GALLIUM_OVERRIDE_CPU_CAPS=sse4.1`` clears AVX,
+AVX2, FMA and AVX-512, and lavapipe picks 128-bit vectors), the same told to use 256-bit vectors, and as on a CPU
+without AVX-512 (``avx`` clears AVX-512 alone: AVX2 and FMA stay).
 """
 
 from __future__ import annotations
@@ -23,9 +24,9 @@ import numpy as np
 
 SETTINGS: dict[str, dict[str, str]] = {
     "machine": {},
-    "sse4.1": {"GALLIUM_OVERRIDE_CPU_CAPS": "sse4.1"},
-    "sse4.1_at_256": {"GALLIUM_OVERRIDE_CPU_CAPS": "sse4.1", "LP_NATIVE_VECTOR_WIDTH": "256"},
-    "avx": {"GALLIUM_OVERRIDE_CPU_CAPS": "avx"},
+    "no_avx": {"GALLIUM_OVERRIDE_CPU_CAPS": "sse4.1"},
+    "no_avx_at_256": {"GALLIUM_OVERRIDE_CPU_CAPS": "sse4.1", "LP_NATIVE_VECTOR_WIDTH": "256"},
+    "no_avx512": {"GALLIUM_OVERRIDE_CPU_CAPS": "avx"},
 }
 
 

@@ -28,10 +28,11 @@ ARGS += ["--children", "8", "--lag", "2"]
 SETTINGS = WorldSettings(camera_width=64, camera_height=64)
 # numpy without its AVX-512 code, as on a CPU without it (benchmarks/check_dispatch.py)
 NO_AVX512 = "AVX512F AVX512CD AVX512_SKX AVX512_CLX AVX512_CNL AVX512_ICL AVX512_SPR"
-# lavapipe as on a CPU with AVX but not AVX2 (or AVX-512): other JIT-compiled shader code, the same pixels. As on a CPU
-# with SSE4.1 alone (128-bit vectors) it renders a pixel in a few thousand frames one level apart, which is why the
-# promise is AVX2 (docs/reproducibility.md; benchmarks/check_dispatch.py measures it).
-LAVAPIPE_AVX = {"GALLIUM_OVERRIDE_CPU_CAPS": "avx"}
+# lavapipe as on a CPU with AVX2 and FMA but not AVX-512 (Mesa's "avx" override clears AVX-512 alone): other
+# JIT-compiled shader code, the same pixels. As on a CPU without AVX ("sse4.1": no AVX, AVX2 or FMA) it renders a
+# pixel in a few hundred frames one level apart, which is why the promise is AVX2 with FMA (docs/reproducibility.md;
+# benchmarks/check_render_dispatch.py measures it).
+LAVAPIPE_NO_AVX512 = {"GALLIUM_OVERRIDE_CPU_CAPS": "avx"}
 
 
 def comparable(rows: list[dict]) -> list[dict]:
@@ -131,13 +132,13 @@ def kill_then_resume(out, args: list[str]) -> None:
 
 @pytest.mark.parametrize(
     "setting",
-    [{"NPY_DISABLE_CPU_FEATURES": NO_AVX512}, LAVAPIPE_AVX],
-    ids=["numpy_without_avx512", "lavapipe_without_avx2"],
+    [{"NPY_DISABLE_CPU_FEATURES": NO_AVX512}, LAVAPIPE_NO_AVX512],
+    ids=["numpy_without_avx512", "lavapipe_without_avx512"],
 )
 def test_another_cpu_dispatch_writes_the_same_dataset(one_worker, tmp_path, setting):
-    """numpy picks SIMD code by CPU, and lavapipe compiles its shaders for it: a machine without AVX-512, or with AVX
-    but not AVX2, records the same values, since the world's arithmetic is elementwise (babblegen.world.exact) and
-    lavapipe's pixels are the same with or without AVX2 and AVX-512. (OpenBLAS's own kernel
+    """numpy picks SIMD code by CPU, and lavapipe compiles its shaders for it: a machine without AVX-512 records the
+    same values, since the world's arithmetic is elementwise (babblegen.world.exact) and lavapipe's pixels are the
+    same with or without AVX-512. (OpenBLAS's own kernel
     choice is checked by hand, benchmarks/check_dispatch.py: tests leave OPENBLAS_CORETYPE as the machine sets
     it.)"""
     import subprocess
@@ -213,14 +214,14 @@ def test_ray_auto_starts_a_local_cluster_and_writes_the_same_dataset(one_worker,
 def test_two_ray_nodes_write_the_same_dataset_as_one_worker(one_worker, one_worker_varied, tmp_path, starts):
     """A real multi-node cluster on this machine: two Ray nodes with one CPU each, so the two rollout actors
     (one CPU each) must run on different nodes; the second node's processes run numpy without its AVX-512 code and
-    lavapipe as on a CPU with AVX but not AVX2, as a node with another CPU would."""
+    lavapipe as on a CPU without AVX-512, as a node with another CPU would."""
     ray = pytest.importorskip("ray")
     from ray.cluster_utils import Cluster
     from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
 
     cluster = Cluster(initialize_head=True, head_node_args={"num_cpus": 1, "include_dashboard": False})
     try:
-        other_cpu = {"NPY_DISABLE_CPU_FEATURES": NO_AVX512, **LAVAPIPE_AVX}
+        other_cpu = {"NPY_DISABLE_CPU_FEATURES": NO_AVX512, **LAVAPIPE_NO_AVX512}
         node = cluster.add_node(num_cpus=1, env_vars=other_cpu)
         cluster.wait_for_nodes()
         address = cluster.address
