@@ -278,30 +278,32 @@ class ObjectMapsModel(nn.Module):
 
 
 class ObjectPosesModel(nn.Module):
-    """One network for every object, shared: the arm's path (``ARM_LINKS`` link origins at each time step) relative
-    to object k's start position, their heights above the table, k's own position and yaw, where the other objects
-    stand relative to it, and which object it is, predict k's (dx, dy) and "moves" logit."""
+    """One network for every object, shared: each point of the arm's path (``ARM_LINKS`` link origins at each time
+    step) relative to object k's start position, its height above the table and which link it is, through a small
+    network and pooled over the points (the nearest pass counts wherever in time it happens); with k's own position
+    and yaw, where the other objects stand relative to it and which object it is, predict k's (dx, dy) and "moves"
+    logit."""
 
     def __init__(self, n_trajectory: int, n_objects: int, steps: int, hidden: int = 128):
         super().__init__()
         self.n_trajectory, self.n_objects, self.steps = n_trajectory, n_objects, steps
-        n_in = steps * ARM_LINKS * 3 + 4 + 2 * n_objects + n_objects
-        self.net = nn.Sequential(
-            nn.Linear(n_in, hidden), nn.ReLU(), nn.Linear(hidden, hidden), nn.ReLU(), nn.Linear(hidden, 3)
-        )
+        self.point = nn.Sequential(nn.Linear(3 + ARM_LINKS, hidden), nn.ReLU(), nn.Linear(hidden, hidden), nn.ReLU())
+        self.head = nn.Sequential(
+            nn.Linear(hidden + 4 + 3 * n_objects, hidden), nn.ReLU(), nn.Linear(hidden, hidden), nn.ReLU(),
+            nn.Linear(hidden, 3),
+        )  # fmt: skip
 
     def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        b, k = len(x), self.n_objects
+        b, k, n = len(x), self.n_objects, self.steps * ARM_LINKS
         start = x[:, self.n_trajectory : self.n_trajectory + 4 * k].reshape(b, k, 4)
-        arm = x[:, self.n_trajectory + 4 * k :].reshape(b, 1, self.steps * ARM_LINKS, 3)
+        arm = x[:, self.n_trajectory + 4 * k :].reshape(b, 1, n, 3)
         relative = arm[..., :2] - start[:, :, None, :2]  # (b, k, points, 2)
-        height = arm[..., 2:].expand(b, k, -1, 1)
+        height = arm[..., 2:].expand(b, k, n, 1)
+        link = torch.eye(ARM_LINKS).repeat(self.steps, 1).expand(b, k, n, ARM_LINKS)
+        pooled = self.point(torch.cat([10 * relative, 10 * height, link], dim=3)).amax(dim=2)
         others = start[:, None, :, :2] - start[:, :, None, :2]  # (b, k, k, 2)
         which = torch.eye(k).expand(b, k, k)
-        features = torch.cat(
-            [10 * torch.cat([relative, height], dim=3).flatten(2), start, 10 * others.flatten(2), which], dim=2
-        )
-        out = self.net(features).view(b, k, 3)
+        out = self.head(torch.cat([pooled, start, 10 * others.flatten(2), which], dim=2)).view(b, k, 3)
         return out[..., :2], out[..., 2]
 
 
