@@ -18,7 +18,7 @@ from babblegen.world.settings import LEGACY_CAMERAS, WorldSettings
 # default: on frames like 128x128 it costs about a third of the CPU time of LeRobot's own default, SVT-AV1, for
 # about the same fidelity and size (benchmarks/bench_codecs.py), and every LeRobot video backend decodes it.
 VIDEO_CODECS = ("h264", "libsvtav1")
-RERUN_FRAMES = ("ends", "all")  # exporters.rerun.columns.FRAME_MODES
+RERUN_FRAMES = ("ends", "all")  # what a run's Rerun recording logs per episode (exporters.rerun.columns)
 
 
 class ConfigError(ValueError):

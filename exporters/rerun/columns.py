@@ -9,6 +9,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from babblegen.config import RERUN_FRAMES as FRAME_MODES  # what a run's recording logs per episode
+
 from .scene import CONTACT_COLOR, HEAD_IMAGE, START, TOOL_COLOR, Scene, quat_xyzw
 
 if TYPE_CHECKING:
@@ -43,9 +45,6 @@ def encode_view(kind: str, frames: Any, quality: int = JPEG_QUALITY) -> Any:
     if kind == "depth":
         return encode_png(np.asarray(frames))
     return np.asarray(frames, dtype=np.uint8)
-
-
-FRAME_MODES = ("ends", "all")  # what a run's recording logs per episode: see `EpisodeColumns`
 
 
 def logged_frames(n: int, frames: str) -> np.ndarray:
