@@ -164,11 +164,14 @@ def load_episodes(root: Path, steps: int, start: str, grid: int, threshold: floa
     rows = [np.flatnonzero(episode == e) for e in episodes]  # frames in order within an episode
     first, last = np.array([r[0] for r in rows]), np.array([r[-1] for r in rows])
     x = np.stack([resample(action[r], steps).ravel() for r in rows])
-    if start == "masks":
-        ids = mask_ids(ds.meta.features, objects, root)
-        frames = ds.hf_dataset.select(first.tolist()).select_columns([MASKS]).with_format("numpy")[MASKS]
-        maps = [occupancy(np.asarray(f).reshape(f.shape[:2]), ids, grid).ravel() for f in frames]
-        x = np.concatenate([x, np.stack(maps)], axis=1)
+    if start == "masks" or (start == "none" and model == "objects"):
+        if start == "masks":
+            ids = mask_ids(ds.meta.features, objects, root)
+            frames = ds.hf_dataset.select(first.tolist()).select_columns([MASKS]).with_format("numpy")[MASKS]
+            maps = np.stack([occupancy(np.asarray(f).reshape(f.shape[:2]), ids, grid).ravel() for f in frames])
+        else:  # the objects model without the start: the same network, every object's map empty
+            maps = np.zeros((len(x), len(objects) * grid * grid))
+        x = np.concatenate([x, maps], axis=1)
         if model == "conv":
             tool = arm_paths(root, [action[r] for r in rows], 64)[:, :, -1]
             x = np.concatenate([x, path_maps(root, ds, tool, grid).reshape(len(x), -1)], 1)
@@ -447,8 +450,8 @@ def main() -> None:
         default="mlp",
         help="mlp: every input flattened; conv: the start's object maps and the commanded tool path's maps in the "
         "head camera's view through a convolutional network (needs --start masks); objects: one network shared by "
-        "every object, that sees the arm's path beside that object's map (--start masks) or relative to its "
-        "position (--start poses) [default: mlp]",
+        "every object, that sees the arm's path beside that object's map (--start masks; with --start none the "
+        "maps are empty) or relative to its position (--start poses) [default: mlp]",
     )
     parser.add_argument("--n", type=int, default=None, help="training episodes per source [default: smallest]")
     parser.add_argument("--epochs", type=int, default=300)
@@ -469,8 +472,6 @@ def main() -> None:
     test_dirs = {d.resolve() for _, dirs in args.test for d in dirs}
     if args.model == "conv" and args.start != "masks":
         parser.error("--model conv looks at the start's masks: use --start masks")
-    if args.model == "objects" and args.start == "none":
-        parser.error("--model objects looks at each object's start: use --start masks or poses")
     if clash := sorted(str(d) for _, dirs in args.train for d in dirs if d.resolve() in test_dirs):
         parser.error(f"trained on and tested on: {clash}")
 
@@ -515,7 +516,7 @@ def main() -> None:
     net = None
     if args.model == "conv":
         net = {"kind": "conv", "n_trajectory": args.steps * 7, "channels": n_objects + 2, "grid": args.grid}
-    elif args.model == "objects" and args.start == "masks":
+    elif args.model == "objects" and args.start in ("masks", "none"):
         net = {"kind": "object_maps", "n_trajectory": args.steps * 7, "grid": args.grid}
     elif args.model == "objects":
         net = {"kind": "object_poses", "n_trajectory": args.steps * 7, "steps": args.steps}
