@@ -6,6 +6,7 @@ trajectory and the scene it starts from, predict which objects move and where ea
         --train random_varied=d/rv1,d/rv2,d/rv3 \\
         --test varied=d/test_nv,d/test_rv --test fixed=d/test_nf [--start masks|poses|none] [--json out.json]
     python examples/train_world_model.py --train noveb=d/nv1 --test varied=d/test_nv --epochs 50 --start poses
+    python examples/train_world_model.py --train noveb=d/nv1 --test varied=d/test_nv --model objects --epochs 200
 
 Per episode the input is the `action` column (commanded joints) resampled to --steps time steps, plus the start:
 with --start masks (default), the head camera's instance masks of the first frame as one binary occupancy map
@@ -14,6 +15,13 @@ per object (mask == the object's id, from the feature's `info.ids`), area-averag
 `observation.environment_state`, an upper bound; with --start none, the trajectory alone. Targets, from
 `observation.environment_state`: each object's (dx, dy), last frame minus first, and whether it moves (its 3-D
 displacement, as the sidecar's, exceeds --moved-threshold).
+
+--model mlp (default) flattens every input into one network. --model objects is one network shared by every
+object: with --start masks it sees that object's map, the other objects' maps summed and where the commanded arm
+(its elbow, wrist and gripper link origins, by forward kinematics) passes in the head camera's image, in every
+cell it crosses and where it is within 12 cm of the table, through a small convolutional network (--start none:
+the same network with empty object maps); with --start poses, the arm's points relative to the object's start,
+pooled over the path.
 
 Each --train source is a name and one dataset per repeat: repeat r trains on the r-th dataset of every source (a
 source given one dataset uses it in every repeat), on --n episodes of each (default: the smallest training
@@ -47,7 +55,8 @@ ENV = "observation.environment_state"
 BASELINE = "nothing moves"
 DISP_SCALE = 10.0  # displacements are learned in decimetres, so both losses have similar magnitudes
 CLIP = 5.0  # normalised inputs are clipped to +-CLIP standard deviations of the training data
-ARM_LINKS = 4  # the objects model sees the paths of the arm's last link origins: forearm, wrist, tool
+# the objects model sees the paths of the arm's last link origins: elbow, wrist (two links at one origin), gripper
+ARM_LINKS = 4
 
 
 @dataclass
@@ -118,7 +127,7 @@ def table_top(root: Path) -> float:
 
 
 def arm_paths(root: Path, actions: list[np.ndarray], steps: int) -> np.ndarray:
-    """(E, steps, ARM_LINKS, 3): where the last ``ARM_LINKS`` link origins of the arm (forearm to tool) are along
+    """(E, steps, ARM_LINKS, 3): where the last ``ARM_LINKS`` link origins of the arm (elbow to gripper) are along
     each episode's commanded trajectory, world frame: the parts of the arm that sweep over the table."""
     kin = arm_kinematics(root)
     return np.stack([kin.link_frames(resample(a, steps))[1][:, -ARM_LINKS:] for a in actions])
