@@ -226,6 +226,16 @@ class WorldModel(nn.Module):
         return out[..., :2], out[..., 2]
 
 
+def image_features(channels: int) -> nn.Module:
+    """The small convolutional network both image models use: ``channels`` maps in, 32 x 4 x 4 features out."""
+    return nn.Sequential(
+        nn.Conv2d(channels, 16, 3, padding=1), nn.ReLU(),
+        nn.Conv2d(16, 32, 3, padding=1, stride=2), nn.ReLU(),
+        nn.Conv2d(32, 32, 3, padding=1, stride=2), nn.ReLU(),
+        nn.AdaptiveAvgPool2d(4), nn.Flatten(),
+    )  # fmt: skip
+
+
 class ConvWorldModel(nn.Module):
     """The start's object maps and the tool path's two maps (``channels`` images of ``grid`` x ``grid``, the head
     camera's view) through a small convolutional network, beside the trajectory through a linear layer; one head
@@ -235,12 +245,7 @@ class ConvWorldModel(nn.Module):
     def __init__(self, n_trajectory: int, channels: int, grid: int, n_objects: int, hidden: int = 128):
         super().__init__()
         self.n_trajectory, self.channels, self.grid, self.n_objects = n_trajectory, channels, grid, n_objects
-        self.conv = nn.Sequential(
-            nn.Conv2d(channels, 16, 3, padding=1), nn.ReLU(),
-            nn.Conv2d(16, 32, 3, padding=1, stride=2), nn.ReLU(),
-            nn.Conv2d(32, 32, 3, padding=1, stride=2), nn.ReLU(),
-            nn.AdaptiveAvgPool2d(4), nn.Flatten(),
-        )  # fmt: skip
+        self.conv = image_features(channels)
         self.trajectory = nn.Linear(n_trajectory, hidden)
         self.head = nn.Sequential(
             nn.ReLU(), nn.Linear(32 * 16 + hidden, hidden), nn.ReLU(), nn.Linear(hidden, 3 * n_objects)
@@ -262,12 +267,7 @@ class ObjectMapsModel(nn.Module):
     def __init__(self, n_trajectory: int, n_objects: int, grid: int, hidden: int = 128):
         super().__init__()
         self.n_trajectory, self.n_objects, self.grid = n_trajectory, n_objects, grid
-        self.conv = nn.Sequential(
-            nn.Conv2d(4, 16, 3, padding=1), nn.ReLU(),
-            nn.Conv2d(16, 32, 3, padding=1, stride=2), nn.ReLU(),
-            nn.Conv2d(32, 32, 3, padding=1, stride=2), nn.ReLU(),
-            nn.AdaptiveAvgPool2d(4), nn.Flatten(),
-        )  # fmt: skip
+        self.conv = image_features(4)
         self.head = nn.Sequential(
             nn.Linear(32 * 16 + n_objects, hidden),
             nn.ReLU(),
