@@ -23,25 +23,38 @@ PRESET = {"h264": "veryfast"}  # SVT-AV1: LeRobot's own preset
 ENCODER_THREADS = 1
 
 
-def _x264_asm_below_avx512(cpuinfo: str = "/proc/cpuinfo") -> str | None:
-    """x264's instruction sets for this CPU without AVX-512, where it has AVX-512 (else None: x264's own choice).
+# What a CPU needs for x264's and x265's AVX2 code (Linux's names; "abm" is LZCNT): every Intel core since Haswell,
+# every AMD core since Zen.
+AVX2_LEVEL = frozenset({"sse4_2", "avx", "avx2", "fma", "bmi1", "bmi2", "abm"})
 
-    x264's AVX-512 code for macroblock-tree rate control gave different bytes from encode to encode of the same
-    frames in one process, one thread, at widths that are not a multiple of 128 pixels (64, 96, 160, 192
-    measured; 128 and 256 not), as if it read memory nothing wrote; its AVX2 code gives the same bytes every
-    time, and the same bytes as the AVX-512 code where that one is stable (128x128: the default's files are
-    unchanged). Passed to the encoder but not recorded in the dataset: it chooses x264's code, not its output.
-    x264 detects AVX-512 as these five extensions; every such CPU has everything up to AVX2 and fast SSE2."""
+
+def _cpu_flags(cpuinfo: str) -> set[str]:
+    """The first processor's flags in ``cpuinfo`` (empty where it cannot be read)."""
     try:
         with open(cpuinfo) as lines:
-            flags = next((line.split(":", 1)[1].split() for line in lines if line.startswith("flags")), [])
+            return set(next((line.split(":", 1)[1].split() for line in lines if line.startswith("flags")), []))
     except OSError:
-        return None
-    avx512 = {"avx512f", "avx512dq", "avx512cd", "avx512bw", "avx512vl"}
-    return "SSE2Fast,AVX2" if avx512 <= set(flags) else None
+        return set()
 
 
-X264_ASM = _x264_asm_below_avx512()
+def encoder_instruction_sets(cpuinfo: str = "/proc/cpuinfo") -> tuple[str | None, str | None]:
+    """x264's and x265's instruction sets: AVX2's on every CPU that has them, else (None, None), the encoders'
+    own choice.
+
+    Pinned so that the bytes do not depend on the CPU's kind. x264's AVX-512 code for macroblock-tree rate control
+    gave different bytes from encode to encode of the same frames in one process, one thread, at widths that are
+    not a multiple of 128 pixels (64, 96, 160, 192 measured; 128 and 256 not), as if it read memory nothing wrote;
+    its AVX2 code gives the same bytes every time, and the same bytes as the AVX-512 code where that one is
+    stable; its plain C code gives other bytes (benchmarks/check_encoder_dispatch.py). x265 writes the instruction
+    sets it detected, a number that differs between CPU kinds, into every file's encoder-information message; its
+    pictures are the same bytes with AVX2, SSE4.2 or C code. Passed to the encoders but not recorded in the
+    dataset: they choose code, not output."""
+    if not _cpu_flags(cpuinfo) >= AVX2_LEVEL:
+        return None, None
+    return "SSE2Fast,AVX2", "avx2"
+
+
+X264_ASM, X265_ASM = encoder_instruction_sets()
 
 
 def video_encoder(codec: str):
@@ -97,9 +110,13 @@ def feature_encoder(feature: dict, codec: str):
 
 
 def encoder_options(encoder) -> dict[str, str]:
-    """The options an episode's encoder opens with: LeRobot's for ``encoder`` with :data:`ENCODER_THREADS`,
-    and for x264 the instruction sets of :data:`X264_ASM`."""
+    """The options an episode's encoder opens with: LeRobot's for ``encoder`` with :data:`ENCODER_THREADS`, and
+    the instruction sets of :data:`X264_ASM` and :data:`X265_ASM`."""
     options = encoder.get_codec_options(ENCODER_THREADS, as_strings=True)
-    if encoder.vcodec in ("h264", "libx264") and X264_ASM is not None:
-        options["x264-params"] = ":".join(filter(None, (options.get("x264-params"), f"asm={X264_ASM}")))
+    for codecs, key, asm in (
+        (("h264", "libx264"), "x264-params", X264_ASM),
+        (("hevc", "libx265"), "x265-params", X265_ASM),
+    ):
+        if encoder.vcodec in codecs and asm is not None:
+            options[key] = ":".join(filter(None, (options.get(key), f"asm={asm}")))
     return options

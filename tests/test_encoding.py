@@ -48,14 +48,30 @@ def test_depth_maps_take_the_largest_coding_unit_smaller_than_both_sides():
     assert x265_depth_params(128, 128).startswith("lossless=1:")
 
 
-def test_x264_is_kept_below_avx512_only_where_the_cpu_has_it(tmp_path):
-    def cpu(flags: str) -> str | None:
+def test_both_encoders_run_avx2_code_on_every_cpu_that_has_it(tmp_path):
+    """The same instruction sets on every CPU kind with AVX2: x264's AVX-512 code, where the CPU has it, never
+    runs, and x265 writes the same instruction-set number into its files."""
+
+    def cpu(flags: str) -> tuple[str | None, str | None]:
         path = tmp_path / "cpuinfo"
         path.write_text(f"processor\t: 0\nflags\t\t: {flags}\n\nprocessor\t: 1\nflags\t\t: {flags}\n")
-        return lerobot_codecs._x264_asm_below_avx512(str(path))
+        return lerobot_codecs.encoder_instruction_sets(str(path))
 
-    avx2 = "fpu sse sse2 ssse3 sse4_1 sse4_2 avx fma bmi1 bmi2 avx2"
-    assert cpu(avx2 + " avx512f avx512dq avx512cd avx512bw avx512vl avx512vbmi") == "SSE2Fast,AVX2"
-    assert cpu(avx2) is None
-    assert cpu(avx2 + " avx512f avx512cd") is None  # x264 uses AVX-512 only with all five
-    assert lerobot_codecs._x264_asm_below_avx512(str(tmp_path / "missing")) is None
+    haswell = "fpu sse sse2 ssse3 sse4_1 sse4_2 avx fma abm bmi1 bmi2 avx2"
+    pinned = ("SSE2Fast,AVX2", "avx2")
+    assert cpu(haswell) == pinned
+    assert cpu(haswell + " avx512f avx512dq avx512cd avx512bw avx512vl avx512vbmi") == pinned
+    assert cpu(haswell.replace(" avx2", "")) == (None, None)  # an AVX2 pin would be an illegal instruction here
+    assert cpu("fpu sse sse2 ssse3 sse4_1 sse4_2") == (None, None)
+    assert lerobot_codecs.encoder_instruction_sets(str(tmp_path / "missing")) == (None, None)
+
+
+def test_the_pinned_instruction_sets_reach_the_encoders():
+    from babblegen.exporters.lerobot_codecs import depth_encoder, encoder_options, video_encoder
+
+    colour, depth = encoder_options(video_encoder("h264")), encoder_options(depth_encoder("fixed", 128, 128))
+    if lerobot_codecs.X264_ASM is None:
+        assert "asm=" not in colour.get("x264-params", "") and "asm=" not in depth["x265-params"]
+    else:
+        assert colour["x264-params"].endswith(f"asm={lerobot_codecs.X264_ASM}")
+        assert depth["x265-params"] == f"{x265_depth_params(128, 128)}:asm={lerobot_codecs.X265_ASM}"
