@@ -8,7 +8,7 @@ Every setting renders the same scenes: the dataset's recorded joint states and o
 the run records them). A rare pixel one level apart is what a short run cannot show; thousands of frames can.
 Settings: the machine's own; lavapipe as on a CPU without AVX (``GALLIUM_OVERRIDE_CPU_CAPS=sse4.1`` clears AVX,
 AVX2, FMA and AVX-512, and lavapipe picks 128-bit vectors), the same told to use 256-bit vectors, and as on a CPU
-without AVX-512 (``avx`` clears AVX-512 alone: AVX2 and FMA stay).
+without AVX-512 (``avx`` clears AVX-512 alone: AVX2 and FMA stay), at its own 256-bit vectors and told to use 128.
 """
 
 from __future__ import annotations
@@ -27,6 +27,7 @@ SETTINGS: dict[str, dict[str, str]] = {
     "no_avx": {"GALLIUM_OVERRIDE_CPU_CAPS": "sse4.1"},
     "no_avx_at_256": {"GALLIUM_OVERRIDE_CPU_CAPS": "sse4.1", "LP_NATIVE_VECTOR_WIDTH": "256"},
     "no_avx512": {"GALLIUM_OVERRIDE_CPU_CAPS": "avx"},
+    "no_avx512_at_128": {"GALLIUM_OVERRIDE_CPU_CAPS": "avx", "LP_NATIVE_VECTOR_WIDTH": "128"},
 }
 
 

@@ -394,7 +394,23 @@ def test_remove_prob_shortens_genomes_and_is_off_in_the_papers_form():
         assert len(c.genome) == max(len(parent) - 1, 1)
 
 
-@pytest.mark.parametrize("bad", [{"extend_prob": 0.6, "remove_prob": 0.5}, {"max_waypoints": -1}])
+def test_remove_above_keeps_short_genomes_whole():
+    ex = make_noveb(mutation_prob=0.0, extend_prob=1.0, tie_break="newest")
+    for _ in range(6):
+        tell_in_order(ex, ex.ask())
+    lengths = sorted(len(g) for g in ex._parents)
+    assert lengths[0] < lengths[-1] and lengths[-1] >= 4
+    limit = (lengths[0] + lengths[-1]) // 2
+    ex.config = NovEBConfig(**{**ex.config.__dict__, "extend_prob": 0.0, "remove_prob": 1.0, "remove_above": limit})
+    cands = ex.ask()
+    for c in cands:
+        parent = ex._parents[[int(i) for i in ex._parent_index].index(c.parent)]
+        assert len(c.genome) == (len(parent) - 1 if len(parent) > limit else len(parent))
+
+
+@pytest.mark.parametrize(
+    "bad", [{"extend_prob": 0.6, "remove_prob": 0.5}, {"max_waypoints": -1}, {"remove_above": 0}, {"remove_above": 2.5}]
+)
 def test_bad_length_settings_are_refused(bad):
     with pytest.raises(ValueError):
         NovEBConfig(**bad)

@@ -4,10 +4,11 @@ Generation 0 asks ``population`` random genomes (one final point uniform in [0, 
 ``children`` children of the current parents (those selected after the generation ``lag + 1`` before it, so that ``lag +
 1`` generations can be evaluated at once): binary tournament on (rank, crowding), optional crossover, Gaussian mutation
 with probability ``mutation_prob`` (of one waypoint, or of all with ``mutation_scope = "genome"``), and waypoint
-extension with probability ``extend_prob`` (at most ``max_waypoints``) or removal with probability ``remove_prob``. A
-child that is neither mutated nor extended nor shortened is a copy of its parent. The simulation is deterministic, so
-such a clone (any genome tried before, or still being tried) reuses that outcome instead of being simulated again
-(``reuse_clones``; off, it is evaluated again as in the paper's noisy simulator). ``tell`` recomputes the novelty of
+extension with probability ``extend_prob`` (at most ``max_waypoints``) or removal with probability ``remove_prob`` (of
+a genome longer than ``remove_above``). A child that is neither mutated nor extended nor shortened is a copy of its
+parent. The simulation is deterministic, so such a clone (any genome tried before, or still being tried) reuses that
+outcome instead of being simulated again (``reuse_clones``; off, it is evaluated again as in the paper's noisy
+simulator). ``tell`` recomputes the novelty of
 parents ∪ feasible children (clones included) against that union plus the archive, archives the most novel newly
 evaluated child (by default only if the archive does not already hold its descriptor), and keeps ``population``
 survivors by NSGA-II on the single objective novelty, i.e. elitist truncation, with ties broken by ``tie_break`` (by
@@ -74,6 +75,7 @@ class NovEBConfig:
     sigma: float = 0.3
     extend_prob: float = 0.05
     remove_prob: float = 0.05  # remove-waypoint probability (0: the paper, whose genomes only grow)
+    remove_above: int = 1  # only a genome of more waypoints than this may lose one
     crossover_prob: float = 0.0
     archive_per_generation: int = 1
     archive_policy: str = field(default="most_novel_unseen")
@@ -109,6 +111,8 @@ class NovEBConfig:
                 raise ValueError(f"{name} must be a probability in [0, 1], got {p}")
         if self.extend_prob + self.remove_prob > 1.0:
             raise ValueError(f"extend_prob + remove_prob must be <= 1, got {self.extend_prob + self.remove_prob}")
+        if int(self.remove_above) != self.remove_above or self.remove_above < 1:
+            raise ValueError(f"remove_above must be an integer >= 1, got {self.remove_above}")
         if self.max_waypoints == 0:  # a settings file or flag's way to say "no bound"
             self.max_waypoints = None
         if self.max_waypoints is not None and (int(self.max_waypoints) != self.max_waypoints or self.max_waypoints < 1):
@@ -136,6 +140,7 @@ def upgrade_stored_config(config: dict[str, Any]) -> dict[str, Any]:
     config = dict(config)
     config.setdefault("remove_prob", 0.0)  # stored before removal existed: genomes only grew ...
     config.setdefault("max_waypoints", None)  # ... without bound
+    config.setdefault("remove_above", 1)  # stored before the setting: any genome of 2 or more could lose one
     if "keep_fraction" in config:
         kept = float(config.pop("keep_fraction"))
         config.setdefault("children", int(round(int(config.get("population", 12)) * (1.0 / kept - 1.0))))
@@ -232,7 +237,7 @@ class NovEB(ArchiveExplorer):
             if draws[i, 2] < cfg.extend_prob:
                 if cfg.max_waypoints is None or len(g) < cfg.max_waypoints:
                     g = extend(g, self.start_norm, self.rng)
-            elif draws[i, 2] < cfg.extend_prob + cfg.remove_prob and len(g) > 1:
+            elif draws[i, 2] < cfg.extend_prob + cfg.remove_prob and len(g) > cfg.remove_above:
                 g = remove_waypoint(g, self.rng)
             start = self._parent_starts[p]
             may_move = cfg.start_mutation_of == "all_children" or not np.array_equal(g, self._parents[p])
