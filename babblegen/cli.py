@@ -125,6 +125,12 @@ def build_parser() -> argparse.ArgumentParser:
         help=f"remove-waypoint probability (0: the paper, genomes only grow) [default: {_N.remove_prob}]",
     )
     g.add_argument(
+        "--remove-above",
+        type=_positive("--remove-above"),
+        default=None,
+        help=f"only a genome of more waypoints than this may lose one [default: {_N.remove_above}]",
+    )
+    g.add_argument(
         "--max-waypoints",
         type=_positive("--max-waypoints"),
         default=None,
@@ -241,6 +247,7 @@ def _overrides(args: argparse.Namespace) -> dict:
             "sigma": args.sigma,
             "extend_prob": args.extend_prob,
             "remove_prob": args.remove_prob,
+            "remove_above": args.remove_above,
             "max_waypoints": args.max_waypoints,
         },
         "world": {"camera_width": args.width, "camera_height": args.height, "fps": args.fps, "starts": args.starts},

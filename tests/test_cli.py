@@ -468,7 +468,7 @@ def test_a_run_stored_by_the_generational_version_resumes_as_the_same_search():
     """Runs made before the number of children was a setting stored ``keep_fraction`` (and knew no lag): they
     resume with the children that meant, not with today's defaults."""
     stored = RunConfig().to_dict()
-    for key in ("children", "lag", "remove_prob", "max_waypoints"):
+    for key in ("children", "lag", "remove_prob", "remove_above", "max_waypoints"):
         del stored["noveb"][key]
     for key in ("max_move_seconds", "return_home"):
         del stored["world"][key]
@@ -477,6 +477,7 @@ def test_a_run_stored_by_the_generational_version_resumes_as_the_same_search():
     config = resumed_config(stored)
     assert (config.noveb.population, config.noveb.children, config.noveb.lag) == (12, 12, 0)
     assert (config.noveb.max_waypoints, config.noveb.remove_prob) == (None, 0.0), "genomes grew without bound"
+    assert config.noveb.remove_above == 1
     assert (config.world.max_move_seconds, config.world.return_home) == (0.0, "retrace"), "and were executed"
     assert config.max_attempts is None
     assert RunConfig().max_attempts == 8000 and RunConfig(max_attempts=0).max_attempts == 0

@@ -367,6 +367,7 @@ def test_max_new_caps_a_batch():
 
 def test_max_waypoints_stops_extension():
     assert NovEBConfig().max_waypoints == 8 and NovEBConfig().remove_prob == 0.05  # the paper: unbounded, no removal
+    assert NovEBConfig().remove_above == 4
     capped = make_noveb(extend_prob=1.0, max_waypoints=3, remove_prob=0.0)
     free = make_noveb(extend_prob=1.0, max_waypoints=None, remove_prob=0.0)
     lengths = {"capped": set(), "free": set()}
@@ -386,7 +387,7 @@ def test_remove_prob_shortens_genomes_and_is_off_in_the_papers_form():
     for _ in range(6):
         tell_in_order(ex, ex.ask())
     assert max(len(g) for g in ex._parents) >= 3
-    ex.config = NovEBConfig(**{**ex.config.__dict__, "extend_prob": 0.0, "remove_prob": 1.0})
+    ex.config = NovEBConfig(**{**ex.config.__dict__, "extend_prob": 0.0, "remove_prob": 1.0, "remove_above": 1})
     cands = ex.ask()
     # every child of a parent with n > 1 waypoints has n - 1 (the parent's genome minus one row)
     for c in cands:

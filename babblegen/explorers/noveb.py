@@ -75,7 +75,9 @@ class NovEBConfig:
     sigma: float = 0.3
     extend_prob: float = 0.05
     remove_prob: float = 0.05  # remove-waypoint probability (0: the paper, whose genomes only grow)
-    remove_above: int = 1  # only a genome of more waypoints than this may lose one
+    # only a genome of more waypoints than this may lose one (1: any of 2 or more): removal bounds what long genomes
+    # cost, and leaves short ones, which rarely reach an object, to grow (docs/departures.md)
+    remove_above: int = 4
     crossover_prob: float = 0.0
     archive_per_generation: int = 1
     archive_policy: str = field(default="most_novel_unseen")
