@@ -21,7 +21,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from bench_encoding_repeats import render_episodes  # noqa: E402
+from bench_encoding_repeats import render_episodes, x264  # noqa: E402
 
 X264_SETTINGS: dict[str, str | None] = {
     "x264 own choice": None,
@@ -35,17 +35,6 @@ X265_SETTINGS: dict[str, str | None] = {
     "SSE4.2 (no AVX)": "sse4.2",
     "plain C": "0",
 }
-
-
-def x264_bytes(images, asm: str | None) -> bytes:
-    from babblegen.exporters import lerobot_codecs
-    from babblegen.exporters.lerobot_encoding import encode_video
-
-    kept, lerobot_codecs.X264_ASM = lerobot_codecs.X264_ASM, asm
-    try:
-        return encode_video(images, 10)[0]
-    finally:
-        lerobot_codecs.X264_ASM = kept
 
 
 def x265_bytes(depth, asm: str | None) -> bytes:
@@ -82,10 +71,10 @@ def main() -> None:
     frames = sum(len(c) for c in colour)
     print(f"{len(episodes)} episodes, {frames} frames at {args.side} x {args.side}")
     print(f"babblegen's instruction sets here: x264 {X264_ASM}, x265 {X265_ASM} (None: the encoder's own choice)")
-    reference = [x264_bytes(c, X264_ASM) for c in colour]
+    reference = [x264(X264_ASM)(c) for c in colour]
     print(f"{'encoder':<6} {'instruction sets':<18} {'other bytes':>12} {'other pictures':>15} {'bytes in all':>12}")
     for name, asm in X264_SETTINGS.items():
-        got = [x264_bytes(c, asm) for c in colour]
+        got = [x264(asm)(c) for c in colour]
         report("x264", name, got, reference)
     reference = [x265_bytes(d, X265_ASM) for d in depth]
     for name, asm in X265_SETTINGS.items():
