@@ -17,12 +17,19 @@ ROOT = Path(__file__).resolve().parents[1]
 
 @pytest.fixture(scope="module")
 def wm():
+    sys.path.insert(0, str(ROOT / "examples"))  # as running the script puts its folder first: its own modules
     spec = importlib.util.spec_from_file_location("train_world_model", ROOT / "examples" / "train_world_model.py")
     module = importlib.util.module_from_spec(spec)
     sys.modules[spec.name] = module  # its dataclasses look their module up
     spec.loader.exec_module(module)
     torch.set_num_threads(1)  # as the script runs (and much faster on a busy machine)
     return module
+
+
+@pytest.fixture(scope="module")
+def wmd(wm):
+    """examples/world_model_data.py, the module the script reads datasets with."""
+    return sys.modules["world_model_data"]
 
 
 def synthetic(wm, n: int, seed: int, n_objects: int = 3):
@@ -43,32 +50,32 @@ def test_named_dirs(wm):
             wm.named_dirs(bad)
 
 
-def test_yaw_of_a_rotation_about_z(wm):
+def test_yaw_of_a_rotation_about_z(wmd):
     for angle in (-3.0, -0.5, 0.0, 1.2, 3.1):
         q = np.array([np.cos(angle / 2), 0.0, 0.0, np.sin(angle / 2)])
-        assert wm.yaw(q) == pytest.approx(angle)
+        assert wmd.yaw(q) == pytest.approx(angle)
     flipped = np.array([0.0, 1.0, 0.0, 0.0])  # upside down about x: no yaw
-    assert wm.yaw(flipped) == pytest.approx(0.0)
+    assert wmd.yaw(flipped) == pytest.approx(0.0)
 
 
-def test_occupancy_is_one_area_averaged_channel_per_id(wm):
+def test_occupancy_is_one_area_averaged_channel_per_id(wmd):
     mask = np.zeros((8, 8), dtype=np.uint16)
     mask[:4, :4] = 5  # top-left cell of a 2 x 2 grid, fully
     mask[4:, 4:6] = 7  # half of the bottom-right cell
-    maps = wm.occupancy(mask, [5, 7, 9], 2)
+    maps = wmd.occupancy(mask, [5, 7, 9], 2)
     assert maps.shape == (3, 2, 2)
     np.testing.assert_allclose(maps[0], [[1, 0], [0, 0]])
     np.testing.assert_allclose(maps[1], [[0, 0], [0, 0.5]])
     assert not maps[2].any()  # an object out of view has an empty map
 
 
-def test_mask_ids_by_name(wm):
-    features = {wm.MASKS: {"info": {"ids": {"0": "background", "4": "can", "5": "ball"}}}}
-    assert wm.mask_ids(features, ["ball", "can"], Path("d")) == [5, 4]
+def test_mask_ids_by_name(wmd):
+    features = {wmd.MASKS: {"info": {"ids": {"0": "background", "4": "can", "5": "ball"}}}}
+    assert wmd.mask_ids(features, ["ball", "can"], Path("d")) == [5, 4]
     with pytest.raises(SystemExit, match="cube"):
-        wm.mask_ids(features, ["cube"], Path("d"))
+        wmd.mask_ids(features, ["cube"], Path("d"))
     with pytest.raises(SystemExit, match="no-segmentation"):
-        wm.mask_ids({}, ["can"], Path("d"))
+        wmd.mask_ids({}, ["can"], Path("d"))
 
 
 def test_scores(wm):
@@ -113,7 +120,7 @@ def test_union_and_take(wm):
         wm.Episodes.union([a, synthetic(wm, 3, 2, n_objects=2)])
 
 
-def test_genome_keys_from_the_sidecar(wm, tmp_path: Path):
+def test_genome_keys_from_the_sidecar(wmd, tmp_path: Path):
     rows = [
         {"attempt": 0, "episode_index": 1, "kind": "noveb", "genome": [[0.1, 0.2]]},
         {"attempt": 1, "episode_index": None, "kind": "noveb", "genome": [[9.0]]},  # infeasible: no episode
@@ -121,7 +128,7 @@ def test_genome_keys_from_the_sidecar(wm, tmp_path: Path):
     ]
     (tmp_path / "babblegen").mkdir()
     (tmp_path / "babblegen" / "attempts.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
-    keys = wm.genome_keys(tmp_path, np.array([0, 1]))
+    keys = wmd.genome_keys(tmp_path, np.array([0, 1]))
     assert keys[0] == keys[1] == "noveb:[[0.1, 0.2]]"
 
 
@@ -178,7 +185,7 @@ def test_the_object_maps_model_learns_one_rule_for_every_object(wm):
     assert out["t"]["a"]["f1"][0] > 0.8
 
 
-def test_the_object_poses_model_sees_the_arm_relative_to_each_object(wm):
+def test_the_object_poses_model_sees_the_arm_relative_to_each_object(wm, wmd):
     """Objects anywhere on a 1 m square; an object moves when the arm's path passes within 5 cm of it below 5 cm
     height. The rule holds wherever the objects stand, so the shared network learns it for new layouts."""
     steps, n_objects = 2, 2
@@ -188,7 +195,7 @@ def test_the_object_poses_model_sees_the_arm_relative_to_each_object(wm):
         start = np.zeros((n, n_objects, 4))
         start[..., :2] = rng.uniform(-0.5, 0.5, (n, n_objects, 2))
         start[..., 2] = 1.0  # yaw 0: cos, sin
-        arm = np.zeros((n, steps, wm.ARM_LINKS, 3))
+        arm = np.zeros((n, steps, wmd.ARM_LINKS, 3))
         arm[..., :2] = rng.uniform(-0.5, 0.5, (n, 1, 1, 2))
         target = rng.integers(0, n_objects, n)
         near = rng.random(n) < 0.6
