@@ -11,9 +11,7 @@ Directory layout of a run (the LeRobot dataset root):
 
 from __future__ import annotations
 
-import importlib.metadata
 import os
-import platform
 import shutil
 import sys
 import time
@@ -29,21 +27,11 @@ from babblegen.config import ConfigError, RunConfig, resumed_config
 from babblegen.exporters.sidecar import attempt_row, clone_row
 from babblegen.interrupts import Interrupted, Interrupts, StartupInterrupts
 from babblegen.outputs import RunOutputs
+from babblegen.provenance import machine, versions
 from babblegen.store import RUN_INFO, AttemptRecord, RunStore, atomic_write, read_run_info, sidecar_dir
 from babblegen.world.rollout import Command
 
 FORMAT_VERSION = 1  # of run.json
-PACKAGES = (
-    "babblegen",
-    "sapien",
-    "mani-skill",
-    "ompl",
-    "torch",
-    "lerobot",
-    "imagehash",
-    "rerun-sdk",
-    "numpy",
-)
 
 
 @dataclass
@@ -71,16 +59,6 @@ class RunSummary:
             f"{self.seconds:.0f} s ({rate:.2f} attempts/s)",
             f"dataset: {self.out}",
         ]
-
-
-def versions() -> dict[str, str]:
-    out = {"python": platform.python_version()}
-    for p in PACKAGES:
-        try:
-            out[p] = importlib.metadata.version(p)
-        except importlib.metadata.PackageNotFoundError:
-            out[p] = "not installed"
-    return out
 
 
 def is_babblegen_dataset(path: Path) -> bool:
@@ -190,6 +168,7 @@ class Run:
                 "command": sys.argv,
                 "config": self.config.to_dict(),
                 "versions": versions(),
+                "machine": machine(),
                 "task": self.task.to_dict(),
                 "robot": self.robot.to_dict(),
                 "joint_names": self.joint_names,

@@ -111,8 +111,14 @@ def test_run_info_records_how_the_dataset_was_made(small_run):
     info = read_run_info(small_run)
     assert info["config"]["seed"] == 2 and info["config"]["world"]["camera_width"] == 64
     assert info["config"]["noveb"]["population"] == 12 and info["config"]["noveb"]["sigma"] == 0.3
-    for package in ("lerobot", "sapien", "mani-skill", "ompl", "torch"):
+    for package in ("lerobot", "sapien", "mani-skill", "ompl", "torch", "scipy", "pillow", "av"):
         assert info["versions"][package] != "not installed"
+    # the machine it ran on, as /proc/cpuinfo tells it: what to compare when two machines disagree
+    cpuinfo = Path("/proc/cpuinfo").read_text()
+    flags = set(next(line for line in cpuinfo.splitlines() if line.startswith("flags")).split(":", 1)[1].split())
+    some = {"sse4_2", "avx2", "fma", "avx512f"}
+    assert set(info["machine"]["cpu_flags"]) & some == flags & some
+    assert info["machine"]["cpu"].split(" (family")[0] in cpuinfo
 
 
 def test_dataset_card_describes_the_dataset(small_run):

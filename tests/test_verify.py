@@ -7,6 +7,7 @@ import shutil
 from pathlib import Path
 
 from babblegen.cli import main
+from babblegen.provenance import machine
 
 
 def test_a_dataset_made_here_reproduces_exactly(small_noveb_dataset: Path, capsys):
@@ -22,10 +23,18 @@ def test_a_recorded_value_that_differs_is_named_with_a_non_zero_exit(small_noveb
     executed = [r for r in rows if r["feasible"]]
     executed[0]["descriptor"] = "0" * len(executed[0]["descriptor"])  # the first episode verify samples
     path.write_text("".join(json.dumps(r) + "\n" for r in rows))
+    info_path = copy / "babblegen" / "run.json"
+    info = json.loads(info_path.read_text())
+    info["machine"]["cpu"] = "Another CPU (family 25, model 1)"  # as if made elsewhere
+    info_path.write_text(json.dumps(info))
     assert main(["verify", str(copy), "--episodes", "3"]) == 1
-    line = capsys.readouterr().out.strip().splitlines()[-1]
+    lines = capsys.readouterr().out.strip().splitlines()
+    line = next(x for x in lines if " sampled episodes " in x)
     assert line.startswith("0 of 3 sampled episodes reproduce exactly; then episode 0")
     assert "descriptor" in line
+    # then what differs between where it was made and here: the CPU alone
+    expected = f"machine.cpu: Another CPU (family 25, model 1) recorded, {machine()['cpu']} here"
+    assert lines[lines.index(line) + 1 :] == [expected]
 
 
 def test_verify_refuses_what_is_not_a_dataset(tmp_path, capsys):
