@@ -28,6 +28,7 @@ CPU_FLAGS = ("sse4_2", "avx", "avx2", "fma", "bmi2", "avx512f", "avx512vl", "avx
 
 
 def versions() -> dict[str, str]:
+    """Python's and each package's version in PACKAGES ("not installed" where one is missing)."""
     out = {"python": platform.python_version()}
     for p in PACKAGES:
         try:
