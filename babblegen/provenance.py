@@ -65,3 +65,18 @@ def machine() -> dict[str, object]:
     except (OSError, subprocess.SubprocessError):
         info["mesa"] = "unknown"
     return info
+
+
+def differences_from_here(info: dict) -> list[str]:
+    """How the machine and packages that made a dataset (run.json) differ from this one's: where to look first."""
+    lines = []
+    made_here = {"machine": machine(), "versions": versions()}
+    for name, here in made_here.items():
+        recorded = info.get(name)
+        if not recorded:
+            lines.append(f"{name}: not recorded in this dataset's run.json (made before it was)")
+            continue
+        for key in sorted(set(recorded) | set(here)):
+            if recorded.get(key) != here.get(key):
+                lines.append(f"{name}.{key}: {recorded.get(key)} recorded, {here.get(key)} here")
+    return lines

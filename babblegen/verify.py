@@ -17,6 +17,7 @@ import numpy as np
 
 from babblegen.config import ConfigError, RunConfig
 from babblegen.exporters.sidecar import ATTEMPTS, read_attempts, read_run_info, sidecar_dir
+from babblegen.provenance import differences_from_here
 from babblegen.world.rollout import Command
 
 # dataset column -> the recorded frames' field it must equal
@@ -86,30 +87,13 @@ def verify(root: Path, episodes: int, echo=print) -> int:
             difference = first_difference(row, recorded, rollout, descriptor)
             if difference is not None:
                 echo(f"{done - 1} of {len(rows)} sampled episodes reproduce exactly; then {difference}")
-                for line in provenance_differences(info):
+                for line in differences_from_here(info):
                     echo(line)
                 return 1
     finally:
         world.close()
     echo(f"{len(rows)} of {len(rows)} sampled episodes reproduce exactly")
     return 0
-
-
-def provenance_differences(info: dict) -> list[str]:
-    """How the machine and packages that made a dataset (run.json) differ from this one's: where to look first."""
-    from babblegen.provenance import machine, versions
-
-    lines = []
-    made_here = {"machine": machine(), "versions": versions()}
-    for name, here in made_here.items():
-        recorded = info.get(name)
-        if not recorded:
-            lines.append(f"{name}: not recorded in this dataset's run.json (made before it was)")
-            continue
-        for key in sorted(set(recorded) | set(here)):
-            if recorded.get(key) != here.get(key):
-                lines.append(f"{name}.{key}: {recorded.get(key)} recorded, {here.get(key)} here")
-    return lines
 
 
 def command_of(row: dict) -> Command:
