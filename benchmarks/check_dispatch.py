@@ -6,8 +6,9 @@ settings, each in its own command (the variables are changed for that command al
 Settings: the machine's own environment; OpenBLAS choosing its kernels for this CPU (``OPENBLAS_CORETYPE`` and
 ``OPENBLAS_L2_SIZE`` unset together); numpy without its AVX-512 code; lavapipe at 256-bit vectors, as on a CPU without
 AVX-512 (Mesa's "avx" override clears AVX-512 alone), and as on a CPU without AVX ("sse4.1": no AVX, AVX2 or FMA)
-at its own 128-bit vectors and told to use 256. A short run rarely shows lavapipe's rare pixel one level apart:
-benchmarks/check_render_dispatch.py re-renders thousands of recorded frames.
+at its own 128-bit vectors and told to use 256; torch's kernels at AVX2 and without SIMD (``ATEN_CPU_CAPABILITY``).
+A short run rarely shows lavapipe's rare pixel one level apart: benchmarks/check_render_dispatch.py re-renders
+thousands of recorded frames.
 For each, the first attempt whose sidecar row differs from the machine's own run and the fields that differ
 (genome, final poses, descriptor...), and whether the episodes' LeRobot frames and videos are byte-identical.
 """
@@ -35,6 +36,9 @@ SETTINGS: dict[str, dict[str, str | None]] = {
     "lavapipe_no_avx512": {"GALLIUM_OVERRIDE_CPU_CAPS": "avx"},
     # a CPU without AVX whose lavapipe is told to use 256-bit vectors anyway
     "lavapipe_no_avx_at_256": {"GALLIUM_OVERRIDE_CPU_CAPS": "sse4.1", "LP_NATIVE_VECTOR_WIDTH": "256"},
+    # torch's own kernels (the controller's action arithmetic) as on a CPU without AVX-512, and without any SIMD
+    "torch_avx2": {"ATEN_CPU_CAPABILITY": "avx2"},
+    "torch_default": {"ATEN_CPU_CAPABILITY": "default"},
 }
 IGNORED = {"timings", "worker_failures"}
 

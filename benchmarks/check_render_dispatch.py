@@ -9,6 +9,12 @@ the run records them). A rare pixel one level apart is what a short run cannot s
 Settings: the machine's own; lavapipe as on a CPU without AVX (``GALLIUM_OVERRIDE_CPU_CAPS=sse4.1`` clears AVX,
 AVX2, FMA and AVX-512, and lavapipe picks 128-bit vectors), the same told to use 256-bit vectors, and as on a CPU
 without AVX-512 (``avx`` clears AVX-512 alone: AVX2 and FMA stay), at its own 256-bit vectors and told to use 128.
+With ``--llvm-cpus NAME...`` also lavapipe's shader code generated for other CPU models (LLVM's names: icelake-server,
+haswell, znver3...) on this CPU, through benchmarks/fake_llvm_cpu.c, a shim compiled with ``cc`` and preloaded that
+answers LLVM's host-CPU question (each setting also reports the names LLVM was given, so a shim never consulted
+shows); "llvm_own" loads the shim without changing the answer.
+
+    python benchmarks/check_render_dispatch.py DATASET --settings machine --llvm-cpus icelake-server haswell
 """
 
 from __future__ import annotations
@@ -62,29 +68,57 @@ def render(dataset: Path, frames: int, out: Path) -> None:
         np.save(out / f"{kind}.npy", np.stack(images))
 
 
+def llvm_names_asked(log: Path) -> list[str]:
+    """The distinct CPU names the shim answered, from its log (none if it was never asked)."""
+    return sorted(set(log.read_text().split())) if log.exists() else []
+
+
+def llvm_cpu_settings(names: list[str], out: Path) -> dict[str, dict[str, str]]:
+    """Settings that preload benchmarks/fake_llvm_cpu.c (compiled into ``out``) naming each CPU model to LLVM."""
+    shim = out / "fake_llvm_cpu.so"
+    out.mkdir(parents=True, exist_ok=True)
+    source = Path(__file__).with_name("fake_llvm_cpu.c")
+    subprocess.run(["cc", "-shared", "-fPIC", "-O2", "-o", str(shim), str(source), "-ldl"], check=True)
+    settings = {"llvm_own": {"LD_PRELOAD": str(shim)}}
+    settings |= {f"llvm_{name}": {"LD_PRELOAD": str(shim), "BABBLEGEN_LLVM_CPU": name} for name in names}
+    for name, env in settings.items():
+        env["BABBLEGEN_LLVM_CPU_LOG"] = str(out / name / "llvm_cpu.txt")
+    return settings
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("dataset", type=Path)
     p.add_argument("--frames", type=int, default=6000)
     p.add_argument("--settings", nargs="+", default=list(SETTINGS), choices=list(SETTINGS))
+    p.add_argument("--llvm-cpus", nargs="*", default=[], metavar="NAME", help="LLVM CPU names to generate code for")
     p.add_argument("--out", type=Path, default=Path("runs/render_dispatch"))
     p.add_argument("--child", type=Path, default=None, help=argparse.SUPPRESS)
     args = p.parse_args()
     if args.child is not None:
         render(args.dataset, args.frames, args.child)
         return
+    settings = dict(SETTINGS)
+    if args.llvm_cpus:
+        settings |= llvm_cpu_settings(args.llvm_cpus, args.out)
     names = ["machine", *[s for s in args.settings if s != "machine"]]
+    names += [s for s in settings if s.startswith("llvm_")]
     for name in names:
         target = args.out / name
         if (target / "rgb.npy").exists():
             continue
-        env = {**os.environ, **SETTINGS[name]}
+        target.mkdir(parents=True, exist_ok=True)
+        env = {**os.environ, **settings[name]}
         cmd = [sys.executable, __file__, str(args.dataset), "--frames", str(args.frames), "--child", str(target)]
         subprocess.run(cmd, env=env, check=True)
     reference = {k.stem: np.load(k) for k in (args.out / "machine").glob("*.npy")}
     report = {}
     for name in names[1:]:
         report[name] = {}
+        asked = llvm_names_asked(args.out / name / "llvm_cpu.txt") if name.startswith("llvm_") else None
+        if asked is not None:
+            report[name]["llvm_cpu"] = asked
+            print(f"{name:>14}: LLVM was told {', '.join(asked) if asked else 'nothing (the shim was never asked)'}")
         for kind, ref in reference.items():
             other = np.load(args.out / name / f"{kind}.npy")
             apart = np.abs(other.astype(np.int32) - ref.astype(np.int32))
