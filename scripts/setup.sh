@@ -67,12 +67,13 @@ if [ ! -x .venv/bin/python ]; then
   say "creating .venv with $PY"
   "$PY" -m venv .venv
 fi
-stamp_want=$(cat pyproject.toml scripts/setup.sh | sha256sum | cut -d' ' -f1)
+stamp_want=$(cat pyproject.toml scripts/setup.sh scripts/constraints.txt | sha256sum | cut -d' ' -f1)
 if [ "$(cat .venv/.setup-stamp 2>/dev/null)" != "$stamp_want" ]; then
   say "installing babblegen (editable, with dev extras) into .venv; the first time takes a few minutes"
   .venv/bin/python -m pip install -q --upgrade pip
-  # no wheel cache: the downloads (PyTorch's are several GB) would stay in ~/.cache beside their installed copy
-  .venv/bin/python -m pip install -q --no-cache-dir -e ".[dev]"
+  # no wheel cache: the downloads (PyTorch's are several GB) would stay in ~/.cache beside their installed copy;
+  # every package at the version in scripts/constraints.txt, so that two machines set up months apart run the same code
+  .venv/bin/python -m pip install -q --no-cache-dir -c scripts/constraints.txt -e ".[dev]"
   echo "$stamp_want" > .venv/.setup-stamp
 else
   say ".venv is up to date"
