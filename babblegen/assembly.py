@@ -30,6 +30,7 @@ def build_explorer(config: RunConfig, arm: dict[str, Any], overrides: dict[str, 
         joint_limits=np.asarray(arm["limits"]),
         start_norm=np.asarray(arm["start_norm"]),
         starts=starts,
+        in_reach=arm.get("in_reach"),
     )
 
 

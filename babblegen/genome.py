@@ -8,6 +8,8 @@ Operators never modify their inputs and never clip: values may leave [0, 1] as i
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 __all__ = [
@@ -42,19 +44,29 @@ def gaussian_mutation(genome: np.ndarray, sigma: float, rng: np.random.Generator
     return g + rng.normal(0.0, sigma, size=g.shape)
 
 
-def waypoint_mutation(genome: np.ndarray, sigma: float, rng: np.random.Generator) -> np.ndarray:
+def waypoint_mutation(
+    genome: np.ndarray,
+    sigma: float,
+    rng: np.random.Generator,
+    accept: Callable[[np.ndarray], bool] | None = None,
+    redraws: int = 0,
+) -> np.ndarray:
     """Add N(0, sigma^2) noise to the three coordinates of one waypoint drawn uniformly (no clipping).
 
     On a one-waypoint genome this is :func:`gaussian_mutation` (same draws); on longer ones the change, and the chance
-    that it throws the trajectory out of reach, do not grow with the number of waypoints.
+    that it throws the trajectory out of reach, do not grow with the number of waypoints. With ``accept`` (a test of
+    the moved waypoint) and ``redraws`` > 0, a rejected noise draw is drawn again, on the same waypoint, up to
+    ``redraws`` times; the last draw stands if none is accepted. ``redraws = 0`` draws exactly as without them.
     """
     g = as_genome(genome)
     if sigma < 0:
         raise ValueError(f"sigma must be >= 0, got {sigma}")
-    if g.shape[0] == 1:
-        return gaussian_mutation(g, sigma, rng)
+    i = 0 if g.shape[0] == 1 else int(rng.integers(g.shape[0]))
     out = g.copy()
-    out[int(rng.integers(g.shape[0]))] += rng.normal(0.0, sigma, size=3)
+    for _ in range(1 + max(int(redraws), 0) if accept is not None else 1):
+        out[i] = g[i] + rng.normal(0.0, sigma, size=3)
+        if accept is None or accept(out[i]):
+            break
     return out
 
 

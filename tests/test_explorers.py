@@ -532,3 +532,35 @@ def test_ask_while_possible_opens_what_the_lag_allows_within_the_attempts_and_ge
     tell_in_order(capped, ask_while_possible(capped, 14, 2000)[0])
     batches = ask_while_possible(capped, 14, 2000)
     assert sum(len(b) for b in batches) == 2 and capped.attempts_asked == 14
+
+
+def test_reach_redraws_spend_no_attempt_on_a_mutated_waypoint_out_of_reach():
+    """The fake world refuses final points with x > 0.8; told that, NovEB redraws such mutations instead of
+    proposing them, and draws as the paper does without it."""
+    assert NovEBConfig().reach_redraws == 0  # the paper's mutation by default
+
+    def in_reach(point: np.ndarray) -> bool:
+        return bool(point[0] <= 0.8)
+
+    refused = {}
+    for redraws in (0, 10):
+        ex = make_explorer(
+            "noveb",
+            {"children": 48, "remove_prob": 0.0, "mutation_prob": 1.0, "extend_prob": 0.0, "reach_redraws": redraws},
+            3,
+            PR2_LIMITS,
+            START,
+            in_reach=in_reach,
+        )
+        tell_in_order(ex, ex.ask())  # the first generation: random genomes, not mutations
+        children = []
+        for _ in range(4):
+            cands = ex.ask()
+            children += cands
+            tell_in_order(ex, cands)
+        refused[redraws] = sum(fake_descriptor(c.genome) is None for c in children) / len(children)
+    assert refused[0] > 0.1 and refused[10] < 0.01, refused
+    with pytest.raises(ValueError, match="in_reach"):
+        make_explorer("noveb", {"reach_redraws": 3}, 0, PR2_LIMITS, START)
+    with pytest.raises(ValueError):
+        NovEBConfig(reach_redraws=-1)

@@ -168,3 +168,26 @@ def test_remove_waypoint_keeps_a_one_waypoint_genome():
     g = np.array([[0.1, 0.2, 0.3]])
     child = remove_waypoint(g, np.random.default_rng(0))
     assert np.array_equal(child, g) and child is not g
+
+
+def test_waypoint_mutation_redraws_a_rejected_waypoint_and_otherwise_draws_as_before():
+    genome = np.full((4, 3), 0.5)
+    plain = waypoint_mutation(genome, 0.3, np.random.default_rng(7))
+    # redraws = 0, or no test: the draws of the operator without them, bit for bit
+    np.testing.assert_array_equal(waypoint_mutation(genome, 0.3, np.random.default_rng(7), lambda p: False, 0), plain)
+    np.testing.assert_array_equal(waypoint_mutation(genome, 0.3, np.random.default_rng(7), None, 5), plain)
+    # a test accepting only moves that raise z: the same waypoint is drawn again until one does (within the bound)
+    accepted = 0
+    for seed in range(200):
+        child = waypoint_mutation(genome, 0.3, np.random.default_rng(seed), lambda p: p[2] > 0.5, 10)
+        changed = np.flatnonzero(np.any(child != genome, axis=1))
+        assert len(changed) == 1, "still exactly one waypoint changes"
+        accepted += child[changed[0], 2] > 0.5
+    assert accepted == 200  # one in 2**11 would keep a rejected last draw: none in 200 here
+    # nothing accepted: redraws + 1 draws are spent on one waypoint, and the last one stands
+    rng, twin = np.random.default_rng(3), np.random.default_rng(3)
+    child = waypoint_mutation(genome, 0.3, rng, lambda p: False, 4)
+    row = int(twin.integers(4))
+    noise = [twin.normal(0.0, 0.3, size=3) for _ in range(5)]
+    np.testing.assert_array_equal(child[row], genome[row] + noise[-1])
+    assert rng.random() == twin.random(), "exactly five noise draws were made"

@@ -269,3 +269,19 @@ def test_planner_direct_when_free(world):
     res = w.planner.plan(w.home, goal)
     assert res.planner == "direct" and len(res.path) == 2
     np.testing.assert_allclose(res.path, [w.home, goal])
+
+
+def test_the_explorers_reach_test_is_the_planners(world):
+    """`arm_info`'s ``in_reach`` (from the URDF alone, on normalised waypoints) refuses exactly the waypoints the
+    planner would refuse as out of reach, so a redrawn mutation never spends an attempt on one."""
+    from babblegen.evaluation import arm_info
+
+    w = world
+    in_reach = arm_info(w.task)["in_reach"]
+    points = np.random.default_rng(4).uniform(-0.6, 1.6, (400, 3))  # the workspace box and well beyond it
+    verdicts = np.array([in_reach(p) for p in points])
+    refused = w.shoulder_distance(w.task.workspace.to_world(points)) > w.reach
+    np.testing.assert_array_equal(verdicts, ~refused)
+    assert 0.1 < verdicts.mean() < 0.9, "the sample has waypoints on both sides of the reach"
+    for p in points[~verdicts][:5]:
+        assert w.solve_ik(w.task.workspace.to_world(p), w.home)[1] == "out_of_reach"

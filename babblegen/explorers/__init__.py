@@ -44,13 +44,15 @@ def make_explorer(
     joint_limits: np.ndarray | None = None,
     start_norm: np.ndarray | None = None,
     starts: Any = None,
+    in_reach: Any = None,
 ) -> Explorer:
     """Build a registered explorer.
 
     ``config`` is ``None`` (defaults), a dict of options, or the explorer's config dataclass. NovEB needs
     ``start_norm`` (the start pose in normalised workspace coordinates), random babbling ``joint_limits``
     (``(7, 2)`` radians); each ignores the other. ``starts`` (a `babblegen.starts.StartSampler`) draws varied
-    starts; None runs every attempt from the task's fixed scene.
+    starts; None runs every attempt from the task's fixed scene. ``in_reach`` (NovEB's ``reach_redraws``) tells
+    whether a normalised waypoint is within the arm's reach.
     """
     try:
         cls = EXPLORERS[name]
@@ -62,4 +64,5 @@ def make_explorer(
         raise ValueError("explorer 'noveb' needs start_norm")
     if issubclass(cls, RandomBabbling) and joint_limits is None:
         raise ValueError(f"explorer {name!r} needs joint_limits")
-    return cls(config, rng_seed, joint_limits=joint_limits, start_norm=start_norm, starts=starts)  # type: ignore[call-arg]
+    extra = {"in_reach": in_reach} if cls is NovEB else {}
+    return cls(config, rng_seed, joint_limits=joint_limits, start_norm=start_norm, starts=starts, **extra)  # type: ignore[call-arg]

@@ -24,6 +24,7 @@ they get no novelty, are never archived and never survive selection; they still 
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -87,6 +88,9 @@ class NovEBConfig:
     # extension stops at this many waypoints (None or 0: unbounded, the paper); with removal, a run's cost per
     # episode stays flat (docs/departures.md)
     max_waypoints: int | None = 8
+    # a mutated waypoint beyond the arm's reach (known from its URDF alone) is drawn again, up to this many times
+    # (0: never, the paper: the attempt is spent on a movement that cannot run); "waypoint" mutation scope only
+    reach_redraws: int = 0
     # with varied starts: a child runs from its parent's start, or, with this probability, from a new one; which
     # children may draw one: "new_genomes" (those whose genome differs from their parent's: a copy of a parent
     # stays a clone, free) or "all_children" (copies too: the same movement from a new start); what it draws:
@@ -119,6 +123,8 @@ class NovEBConfig:
             self.max_waypoints = None
         if self.max_waypoints is not None and (int(self.max_waypoints) != self.max_waypoints or self.max_waypoints < 1):
             raise ValueError(f"max_waypoints must be an integer >= 1 (0: no bound), got {self.max_waypoints}")
+        if int(self.reach_redraws) != self.reach_redraws or self.reach_redraws < 0:
+            raise ValueError(f"reach_redraws must be an integer >= 0, got {self.reach_redraws}")
         if not self.sigma >= 0.0:
             raise ValueError(f"sigma must be >= 0, got {self.sigma}")
         if int(self.archive_per_generation) != self.archive_per_generation or self.archive_per_generation < 0:
@@ -174,12 +180,16 @@ class NovEB(ArchiveExplorer):
         start_norm: np.ndarray,
         joint_limits: np.ndarray | None = None,
         starts: StartSampler | None = None,
+        in_reach: Callable[[np.ndarray], bool] | None = None,
     ) -> None:
         super().__init__(config, rng_seed, starts)
         start = np.asarray(start_norm, dtype=np.float64)
         if start.shape != (3,) or not np.all(np.isfinite(start)):
             raise ValueError(f"start_norm must be a finite (3,) array, got {start}")
         self.start_norm = start
+        if self.config.reach_redraws and in_reach is None:
+            raise ValueError("reach_redraws needs in_reach, the arm's reach as a test of a normalised waypoint")
+        self.in_reach = in_reach
         # Current parents: genomes, descriptors (p, w), attempt indices, novelty at their last evaluation.
         self._parents: list[np.ndarray] = []
         self._parent_codes = np.zeros((0, 1), dtype=np.uint64)
@@ -233,8 +243,10 @@ class NovEB(ArchiveExplorer):
             if draws[i, 0] < cfg.crossover_prob:
                 g = crossover(g, self._parents[int(mates[i])], self.rng)
             if draws[i, 1] < cfg.mutation_prob:
-                mutate = waypoint_mutation if cfg.mutation_scope == "waypoint" else gaussian_mutation
-                g = mutate(g, cfg.sigma, self.rng)
+                if cfg.mutation_scope == "waypoint":
+                    g = waypoint_mutation(g, cfg.sigma, self.rng, self.in_reach, cfg.reach_redraws)
+                else:
+                    g = gaussian_mutation(g, cfg.sigma, self.rng)
             # one draw decides extension or removal (with removal off, the paper's draws exactly)
             if draws[i, 2] < cfg.extend_prob:
                 if cfg.max_waypoints is None or len(g) < cfg.max_waypoints:

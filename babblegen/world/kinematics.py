@@ -129,6 +129,40 @@ class UrdfModel:
         return out[::-1]
 
 
+@dataclass(frozen=True)
+class ReachShell:
+    """Where the tool can be at all: within ``reach`` of the circle the shoulder-lift axis sweeps around the pan
+    axis (world frame, metres). Beyond it no configuration gets the tool there; inside it IK may still fail."""
+
+    pan_xy: tuple[float, float]
+    lift_radius: float
+    shoulder_z: float
+    reach: float
+
+    @classmethod
+    def of(cls, kin: ArmKinematics) -> ReachShell:
+        """The shell of an arm: its joint frames at zero, and the tool's distance from the shoulder-lift axis with
+        the arm stretched out."""
+        pos = kin.link_frames(np.zeros(kin.dof))[1][0]
+        _, stretched = kin.link_frames(np.clip(np.zeros(kin.dof), kin.lower, kin.upper))
+        return cls(
+            (float(pos[1, 0]), float(pos[1, 1])),
+            float(row_norm(pos[2, :2] - pos[1, :2])),
+            float(pos[2, 2]),
+            float(row_norm(stretched[0, -1] - stretched[0, 2])),
+        )
+
+    def distance(self, points: np.ndarray) -> np.ndarray:
+        """Distance from points (..., 3) to the nearest place the shoulder-lift joint can be."""
+        points = np.asarray(points, dtype=np.float64)
+        horizontal = row_norm(points[..., :2] - np.asarray(self.pan_xy))
+        return np.hypot(horizontal - self.lift_radius, points[..., 2] - self.shoulder_z)
+
+    def contains(self, points: np.ndarray) -> np.ndarray:
+        """Whether each point (..., 3) is within reach."""
+        return self.distance(points) <= self.reach
+
+
 class ArmKinematics:
     """Serial chain from `base` to `tip` with batched FK, tool Jacobian and damped least-squares IK.
 

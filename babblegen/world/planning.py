@@ -16,7 +16,7 @@ from babblegen.robot import RobotSpec
 from babblegen.scene import TaskSpec
 from babblegen.world.collision import Box, SphereCollisionModel
 from babblegen.world.exact import row_norm
-from babblegen.world.kinematics import ArmKinematics, UrdfModel
+from babblegen.world.kinematics import ArmKinematics, ReachShell, UrdfModel
 from babblegen.world.planner import JointPlanner
 from babblegen.world.rollout import Command
 from babblegen.world.settings import WorldSettings
@@ -55,17 +55,9 @@ class ArmPlanner:
         self.joint_planner = JointPlanner(
             self.collision, max_iterations=settings.plan_iterations, time_limit=settings.plan_time_limit
         )
-        self.reach = self._max_reach()
-        pos = self.kin.link_frames(np.zeros(self.kin.dof))[1][0]
-        self._pan_xy, self._shoulder_z = pos[1, :2], pos[2, 2]
-        self._lift_radius = float(row_norm(pos[2, :2] - pos[1, :2]))
+        self.shell = ReachShell.of(self.kin)
+        self.reach = self.shell.reach
         self.bank_q, self.bank_tool = self._seed_bank(400)
-
-    def _max_reach(self) -> float:
-        """Distance from the shoulder-lift axis to the tool with the arm stretched out."""
-        stretched = np.clip(np.zeros(self.kin.dof), self.kin.lower, self.kin.upper)
-        _, pos = self.kin.link_frames(stretched)
-        return float(row_norm(pos[0, -1] - pos[0, 2]))
 
     @property
     def start_norm(self) -> np.ndarray:
@@ -75,9 +67,7 @@ class ArmPlanner:
     def shoulder_distance(self, points: np.ndarray) -> np.ndarray:
         """Distance from points (..., 3) to the nearest place the shoulder-lift joint can be (a circle
         around the pan axis): beyond `reach`, no configuration gets the tool there."""
-        points = np.asarray(points)
-        horizontal = row_norm(points[..., :2] - self._pan_xy)
-        return np.hypot(horizontal - self._lift_radius, points[..., 2] - self._shoulder_z)
+        return self.shell.distance(points)
 
     def _seed_bank(self, n: int) -> tuple[np.ndarray, np.ndarray]:
         """Collision-free configurations spread over the joint space (fixed seed) and their tool points:
