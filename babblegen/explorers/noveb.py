@@ -144,11 +144,12 @@ class NovEBConfig:
 def upgrade_stored_config(config: dict[str, Any]) -> dict[str, Any]:
     """A NovEB section stored by an earlier version, in this version's terms, meaning the same search: the
     number of children was ``population * (1 / keep_fraction - 1)``, generations did not overlap, and genomes grew
-    without bound and never shrank."""
+    without bound and never shrank, and mutations out of the arm's reach were not drawn again."""
     config = dict(config)
     config.setdefault("remove_prob", 0.0)  # stored before removal existed: genomes only grew ...
     config.setdefault("max_waypoints", None)  # ... without bound
     config.setdefault("remove_above", 1)  # stored before the setting: any genome of 2 or more could lose one
+    config.setdefault("reach_redraws", 0)  # stored before the setting: a waypoint out of reach was run as drawn
     if "keep_fraction" in config:
         kept = float(config.pop("keep_fraction"))
         config.setdefault("children", int(round(int(config.get("population", 12)) * (1.0 / kept - 1.0))))
