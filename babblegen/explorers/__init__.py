@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import is_dataclass
 from typing import Any
 
@@ -44,7 +45,7 @@ def make_explorer(
     joint_limits: np.ndarray | None = None,
     start_norm: np.ndarray | None = None,
     starts: Any = None,
-    in_reach: Any = None,
+    in_reach: Callable[[np.ndarray], bool] | None = None,
 ) -> Explorer:
     """Build a registered explorer.
 
