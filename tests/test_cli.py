@@ -476,7 +476,7 @@ def test_a_run_stored_by_the_generational_version_resumes_as_the_same_search():
     stored = RunConfig().to_dict()
     for key in ("children", "lag", "remove_prob", "remove_above", "max_waypoints"):
         del stored["noveb"][key]
-    for key in ("max_move_seconds", "return_home"):
+    for key in ("max_move_seconds", "count_approach", "return_home"):
         del stored["world"][key]
     stored["noveb"]["keep_fraction"] = 0.5
     stored["max_attempts"] = None  # "all generations", the default then
@@ -485,6 +485,7 @@ def test_a_run_stored_by_the_generational_version_resumes_as_the_same_search():
     assert (config.noveb.max_waypoints, config.noveb.remove_prob) == (None, 0.0), "genomes grew without bound"
     assert config.noveb.remove_above == 1
     assert (config.world.max_move_seconds, config.world.return_home) == (0.0, "retrace"), "and were executed"
+    assert config.world.count_approach
     assert config.max_attempts is None
     assert RunConfig().max_attempts == 8000 and RunConfig(max_attempts=0).max_attempts == 0
     zero = RunConfig(max_attempts=0)

@@ -392,23 +392,36 @@ def test_a_direct_return_home_is_shorter_and_ends_home(world):
         direct.close()
 
 
-def test_a_movement_out_longer_than_max_move_seconds_is_refused_after_planning(world, monkeypatch):
+@pytest.mark.parametrize("count_approach", [True, False])
+def test_a_movement_out_longer_than_max_move_seconds_is_refused_after_planning(world, monkeypatch, count_approach):
     """The bound on an episode's cost: the path out is planned and timed at the arm's speed; longer than
-    `max_move_seconds`, the attempt is infeasible ("too_long") without being simulated."""
+    `max_move_seconds`, the attempt is infeasible ("too_long") without being simulated. With `count_approach =
+    false` the way from home to the first waypoint does not count, so a tour starting on the table's far side
+    is bounded like one starting near home."""
     import dataclasses
 
-    tour = waypoints(world, np.array([[0.55, 0.35, 1.05], [0.75, 0.0, 1.1], [0.55, -0.35, 1.05]]))
+    s = dataclasses.replace(world.settings, count_approach=count_approach)
+    monkeypatch.setattr(world, "settings", s)
+    points = np.array([[0.55, 0.35, 1.05], [0.75, 0.0, 1.1], [0.55, -0.35, 1.05]])
+    tour = waypoints(world, points)
     executed = world.rollout(tour)
     assert executed.feasible, executed.reason
     # its movement out in control steps: the planned path out (retraced back), timed at the arm's speed
-    moving = len(world._timed_path(executed.joint_path[: (len(executed.joint_path) + 1) // 2]))
-    assert moving > 10
-    s = world.settings
-    monkeypatch.setattr(world, "settings", dataclasses.replace(s, max_move_seconds=(moving - 1) / s.control_freq))
+    path_out = executed.joint_path[: (len(executed.joint_path) + 1) // 2]
+    moving = float(len(world._timed_path(path_out)))
+    # the first waypoint is where the tool reaches it first, by forward kinematics
+    tool = world.kin.tool_position(path_out)
+    first = int(np.argmax(np.linalg.norm(tool - points[0], axis=1) < 2 * s.ik_tolerance))
+    assert 0 < first < len(path_out) - 1
+    approach = np.abs(np.diff(path_out[: first + 1], axis=0)).max(axis=1).sum() / s.max_joint_speed
+    assert approach > 0.5, "the tour starts across the table from home"
+    counted = moving if count_approach else moving - approach * s.control_freq
+    assert counted > 10
+    monkeypatch.setattr(world, "settings", dataclasses.replace(s, max_move_seconds=(counted - 0.5) / s.control_freq))
     refused = world.rollout(tour)
     assert (refused.feasible, refused.reason, refused.frames) == (False, "too_long", None)
     assert "sim" not in refused.timings
-    monkeypatch.setattr(world, "settings", dataclasses.replace(s, max_move_seconds=moving / s.control_freq))
+    monkeypatch.setattr(world, "settings", dataclasses.replace(s, max_move_seconds=(counted + 0.5) / s.control_freq))
     again = world.rollout(tour)
     assert again.feasible
     np.testing.assert_array_equal(again.frames.state, executed.frames.state)

@@ -9,6 +9,7 @@ random restarts) and plans a collision-free segment to each goal. `World` owns o
 from __future__ import annotations
 
 import time
+from typing import NamedTuple
 
 import numpy as np
 
@@ -20,6 +21,18 @@ from babblegen.world.kinematics import ArmKinematics, ReachShell, UrdfModel
 from babblegen.world.planner import JointPlanner
 from babblegen.world.rollout import Command
 from babblegen.world.settings import WorldSettings
+
+
+class Plan(NamedTuple):
+    """A command's joint path home -> targets (not yet back), or the reason (a key of ``REASONS``) it has none.
+    ``approach`` is the index of the path's knot at the first target: the way there from home."""
+
+    path: np.ndarray | None
+    reason: str
+    targets: np.ndarray | None
+    planner: str
+    timings: dict
+    approach: int = 0
 
 
 class ArmPlanner:
@@ -105,7 +118,7 @@ class ArmPlanner:
                 return cand[np.argmin(np.abs(cand - seed_q).sum(axis=1))], ""
         return None, "target_in_collision" if found_any else "no_ik"
 
-    def plan_command(self, command: Command) -> tuple[np.ndarray | None, str, np.ndarray | None, str, dict]:
+    def plan_command(self, command: Command) -> Plan:
         """Joint path home -> targets (not yet back), or the reason it does not exist."""
         timings = {"ik": 0.0, "plan": 0.0}
         q_prev, path, planners = self.home, [self.home[None]], set()
@@ -117,7 +130,7 @@ class ArmPlanner:
                 q, reason = self.solve_ik(target, q_prev)
                 timings["ik"] += time.perf_counter() - t0
                 if q is None:
-                    return None, reason, targets, "", timings
+                    return Plan(None, reason, targets, "", timings)
                 goals.append(q)
                 q_prev = q
         elif command.kind == "joint_target":
@@ -126,7 +139,7 @@ class ArmPlanner:
             if np.any(goal < self.kin.lower - 1e-9) or np.any(goal > self.kin.upper + 1e-9):
                 raise ValueError("joint target outside the joint limits")
             if self.collision.in_collision(goal[None])[0]:
-                return None, "target_in_collision", None, "", timings
+                return Plan(None, "target_in_collision", None, "", timings)
             goals = [goal]
         else:
             raise ValueError(f"unknown command kind {command.kind!r}")
@@ -135,9 +148,9 @@ class ArmPlanner:
             res = self.joint_planner.plan(q_prev, goal)
             timings["plan"] += res.seconds
             if res.path is None:
-                return None, "no_plan", targets, "", timings
+                return Plan(None, "no_plan", targets, "", timings)
             path.append(res.path[1:])
             planners.add(res.planner)
             q_prev = goal
         planner = "rrtconnect" if "rrtconnect" in planners else "direct"
-        return np.concatenate(path), "", targets, planner, timings
+        return Plan(np.concatenate(path), "", targets, planner, timings, approach=len(path[1]))

@@ -78,6 +78,9 @@ class WorldSettings:
     # the longest movement out (planned, at max_joint_speed) a rollout executes: longer ones are infeasible
     # ("too_long"), found by planning alone; it bounds an episode's frames, and so its cost (0: no bound, the paper)
     max_move_seconds: float = 4.0
+    # whether the way from home to the first waypoint counts toward max_move_seconds; false leaves movements on
+    # the table's far side from home (the gray box's) as long as those on its near side (docs/departures.md)
+    count_approach: bool = True
     dwell_seconds: float = 0.2  # pause at the final waypoint before returning
     # how the arm goes home after the dwell: "retrace" (back through every waypoint) or "direct" (a straight line
     # in joint space, where it is collision-free with the table and the robot, else back along the path)

@@ -20,7 +20,7 @@ from babblegen.scene import TaskSpec
 from babblegen.starts import layout_poses
 from babblegen.world.cameras import CameraRig
 from babblegen.world.exact import row_norm
-from babblegen.world.planning import ArmPlanner
+from babblegen.world.planning import ArmPlanner, Plan
 from babblegen.world.rollout import Command, Frames, Rollout
 from babblegen.world.settings import WorldSettings
 
@@ -130,7 +130,7 @@ class World:
         """`ArmPlanner.solve_ik`: a collision-free configuration reaching `target`, near `seed_q`."""
         return self.planning.solve_ik(target, seed_q)
 
-    def plan_command(self, command: Command) -> tuple[np.ndarray | None, str, np.ndarray | None, str, dict]:
+    def plan_command(self, command: Command) -> Plan:
         """`ArmPlanner.plan_command`: joint path home -> targets (not yet back), or the reason it does not exist."""
         return self.planning.plan_command(command)
 
@@ -195,6 +195,16 @@ class World:
         t = np.arange(0.0, t_knots[-1] + dt, dt)
         return np.stack([np.interp(t, t_knots, path[:, j]) for j in range(path.shape[1])], axis=1)
 
+    def _move_steps(self, out: np.ndarray, out_path: np.ndarray, approach: int) -> float:
+        """The control steps of the movement out (``out``, timed from ``out_path``) that count toward
+        ``max_move_seconds``: all of them with ``count_approach``, else those after the first target, which the
+        path reaches at knot ``approach``."""
+        s = self.settings
+        if s.count_approach:
+            return float(len(out))
+        approach_s = np.abs(np.diff(out_path[: approach + 1], axis=0)).max(axis=1).sum() / s.max_joint_speed
+        return len(out) - approach_s * s.control_freq
+
     def reset(self, start: np.ndarray | None = None) -> None:
         """Robot at home, every object at its start pose (the task's, or the varied start ``start``: (n_objects,
         3) x, y, yaw, resting on the table, not settled yet: `settle_start`), with no physical memory of earlier
@@ -248,13 +258,14 @@ class World:
         rollout; a worker that defers it returns the movement sooner and renders when it would otherwise wait
         for the others."""
         t_start = time.perf_counter()
-        out_path, reason, targets, planner, timings = self.plan_command(command)
+        out_path, reason, targets, planner, timings, approach = self.plan_command(command)
         if out_path is None:
             timings["total"] = time.perf_counter() - t_start
             return Rollout(command, False, reason, ee_targets=targets, timings=timings)
         s = self.settings
         out = self._timed_path(out_path)
-        if s.max_move_seconds and len(out) > s.max_move_seconds * s.control_freq + 1e-9:
+        bound = s.max_move_seconds * s.control_freq
+        if s.max_move_seconds and self._move_steps(out, out_path, approach) > bound + 1e-9:
             timings["total"] = time.perf_counter() - t_start
             return Rollout(command, False, "too_long", ee_targets=targets, timings=timings)
         dwell = np.repeat(out[-1:], max(int(round(s.dwell_seconds * s.control_freq)), 0), axis=0)
