@@ -142,6 +142,7 @@ def resumed_config(stored: dict[str, Any], overrides: dict[str, Any] | None = No
     data["world"].setdefault("return_home", "retrace")  # stored before the setting existed: the arm retraced
     data["world"].setdefault("max_move_seconds", 0.0)  # ... and any movement was executed
     data["world"].setdefault("count_approach", True)  # ... and a bound counted the way to the first waypoint
+    data["world"].setdefault("pcm", True)  # ... and PhysX generated contacts with persistent manifolds
     for key, value in (overrides or {}).items():
         if value is None:
             continue

@@ -48,6 +48,7 @@ class World:
             cameras=s.cameras,
             sim_freq=s.sim_freq,
             control_freq=s.control_freq,
+            pcm=s.pcm,
         )
         self.env.reset(seed=seed)
         self.sim = self.env.unwrapped
