@@ -218,7 +218,7 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--no-progress", action="store_true", help="no progress bar")
     g.set_defaults(func=cmd_generate)
 
-    for module in ("babblegen.report_cli", "babblegen.verify"):
+    for module in ("babblegen.report_cli", "babblegen.verify", "babblegen.worldmodel.cli"):
         with contextlib.suppress(ImportError):
             __import__(module, fromlist=["register"]).register(sub)
     return parser

@@ -1,0 +1,150 @@
+"""`babblegen evaluate`: what each dataset teaches a world model, on held-out test sets and in planning."""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+from dataclasses import asdict
+from pathlib import Path
+
+from babblegen.worldmodel.episodes import EvaluationError
+
+DESCRIPTION = """\
+Train a small world model (CPU, minutes) on each training source and score it on held-out test sets: which objects
+move (F1), where they end up (the median error of their final x, y against "nothing moves" and the training set's
+mean displacement; their yaw), overall and per outcome stratum (nothing moved, one object, several objects, toppled
+/ rolled / off the table), and in planning in the real simulator: for goals taken from a test set's episodes, the
+model picks one of K candidate movements, which is executed; beside it the oracle (the best of the same K) and a
+random choice.
+
+Each --train source is NAME=DIR[,DIR...], one dataset per repeat; each --test set is NAME=DIR[,DIR...], the union of
+its datasets, seeded apart from every training dataset. --attempts cuts every training dataset to its first N
+attempts (equal simulation); with --equal episodes (or both, the default) every source is then cut to as many
+episodes as the smallest holds. Writes OUT/evaluation.md, OUT/evaluation.json and, for two budgets or more,
+OUT/budgets.png. The model: babblegen/worldmodel/model.py; the measures: docs/world_model.md."""
+
+
+def _named_dirs(text: str) -> tuple[str, list[Path]]:
+    name, sep, dirs = text.partition("=")
+    paths = [Path(d) for d in dirs.split(",") if d]
+    if not sep or not name or not paths:
+        raise argparse.ArgumentTypeError(f"expected NAME=DIR[,DIR...], got {text!r}")
+    return name, paths
+
+
+def _budgets(text: str) -> list[int]:
+    try:
+        values = [int(v) for v in text.split(",") if v]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected attempt counts like 1200,4000, got {text!r}") from None
+    if not values or min(values) < 1:
+        raise argparse.ArgumentTypeError(f"attempt counts must be positive, got {text!r}")
+    return sorted(set(values))
+
+
+def register(sub) -> None:
+    p = sub.add_parser(
+        "evaluate",
+        help="what each dataset teaches a world model: held-out prediction and planning in the simulator",
+        description=DESCRIPTION,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("--train", type=_named_dirs, action="append", required=True, metavar="NAME=DIR[,DIR...]")
+    p.add_argument("--test", type=_named_dirs, action="append", required=True, metavar="NAME=DIR[,DIR...]")
+    p.add_argument(
+        "--attempts",
+        type=_budgets,
+        default=None,
+        metavar="N[,N...]",
+        help="attempt budgets: each training dataset cut to its first N attempts [default: whole]",
+    )
+    p.add_argument(
+        "--equal",
+        choices=("attempts", "episodes", "both"),
+        default="both",
+        help="compare at equal attempts, at equal episodes, or both [default: both]",
+    )
+    p.add_argument(
+        "--plan-test",
+        default=None,
+        metavar="NAME",
+        help="the test set whose episodes give the planning goals [default: the first --test]",
+    )
+    p.add_argument("--plan-goals", type=int, default=40, help="planning goals; 0: no planning [default: 40]")
+    p.add_argument("--plan-candidates", type=int, default=16, help="candidate movements per goal [default: 16]")
+    p.add_argument("--steps", type=int, default=None, help="gradient steps per model [default: 4000]")
+    p.add_argument("--seed", type=int, default=0, help="repeat r trains with seed SEED + r [default: 0]")
+    p.add_argument("--workers", type=int, default=None, help="processes [default: one per core]")
+    p.add_argument("--out", type=Path, default=Path("evaluation"), help="output folder [default: evaluation]")
+    p.set_defaults(func=cmd_evaluate)  # fmt: skip
+
+
+def cmd_evaluate(args: argparse.Namespace) -> int:
+    from babblegen.worldmodel.episodes import EpisodeSet, read_dataset
+    from babblegen.worldmodel.experiment import Source, check_apart, run_experiment
+    from babblegen.worldmodel.model import TrainSettings
+    from babblegen.worldmodel.planning import PlanningSettings, build_task
+    from babblegen.worldmodel.report import write
+
+    for flag in ("train", "test"):
+        names = [name for name, _ in getattr(args, flag)]
+        if len(set(names)) < len(names):
+            raise EvaluationError(f"--{flag} names must differ: {names}")
+    repeats = max(len(dirs) for _, dirs in args.train)
+    if any(len(dirs) not in (1, repeats) for _, dirs in args.train):
+        raise EvaluationError(f"every --train source needs 1 or {repeats} datasets (one per repeat)")
+    test_names = [name for name, _ in args.test]
+    plan_test = args.plan_test or test_names[0]
+    if plan_test not in test_names:
+        raise EvaluationError(f"--plan-test {plan_test!r} names no --test set ({', '.join(test_names)})")
+    if args.plan_goals < 0 or args.plan_candidates < 2:
+        raise EvaluationError("--plan-goals must be >= 0 and --plan-candidates >= 2")
+    workers = args.workers or os.cpu_count() or 1
+    if workers < 1:
+        raise EvaluationError(f"--workers must be at least 1, got {workers}")
+
+    started = time.perf_counter()
+    cache: dict[Path, object] = {}
+
+    def load(path: Path):
+        key = path.resolve()
+        if key not in cache:
+            cache[key] = read_dataset(path)
+            print(f"  {path}: {cache[key].label}, {len(cache[key].episodes)} episodes")
+        return cache[key]
+
+    print("test sets:")
+    test_sets = {name: [load(d) for d in dirs] for name, dirs in args.test}
+    print("training sources:")
+    sources = [Source(name, [load(d) for d in dirs]) for name, dirs in args.train]
+    check_apart(sources, test_sets)
+    tests = {name: EpisodeSet.union([d.episodes for d in parts]) for name, parts in test_sets.items()}
+    EpisodeSet.union([*tests.values(), *(d.episodes for s in sources for d in s.datasets)])  # one scene
+
+    plan_settings = PlanningSettings(goals=args.plan_goals, candidates=args.plan_candidates, seed=args.seed)
+    plan = None
+    if args.plan_goals:
+        plan = build_task(tests[plan_test], plan_settings, workers, args.out / f"planning_{plan_test}.npz")
+        if plan is None:
+            print(f"planning: {plan_test} holds no goal (no waypoint episode moved an object 5 cm): skipped")
+    train = TrainSettings(seed=args.seed) if args.steps is None else TrainSettings(steps=args.steps, seed=args.seed)
+    if train.steps < 1:
+        raise EvaluationError(f"--steps must be at least 1, got {train.steps}")
+    modes = ["attempts", "episodes"] if args.equal == "both" else [args.equal]
+    result = run_experiment(
+        sources, tests, args.attempts or [None], modes, train, plan, plan_settings, workers, echo=print
+    )
+    result["settings"] = {
+        "train": {name: [str(d) for d in dirs] for name, dirs in args.train},
+        "test": {name: [str(d) for d in dirs] for name, dirs in args.test},
+        "model": asdict(train),
+        "planning": {**asdict(plan_settings), "test": plan_test},
+        "command": " ".join(sys.argv),
+    }
+    if plan is not None:
+        result["planning"]["test"] = plan_test
+    written = write(result, args.out)
+    print(f"done in {time.perf_counter() - started:.0f} s: " + ", ".join(str(p) for p in written))
+    return 0

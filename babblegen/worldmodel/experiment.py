@@ -1,0 +1,149 @@
+"""What each training source teaches the world model: train one model per source, budget and repeat, score it on
+every held-out test set and in planning, and gather the scores.
+
+Budgets: every source is cut to its first N attempts (``equal = "attempts"``: equal simulation), and then each to
+as many episodes as the smallest of them holds (``equal = "episodes"``). Repeat r trains on the r-th dataset of every
+source (a source of one dataset uses it in every repeat), with the seed ``seed + r``. Training episodes whose
+movement and start appear in a test set are dropped. Models train in worker processes, one thread each; a model
+depends on its data and seed alone, never on the number of workers.
+"""
+
+from __future__ import annotations
+
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import asdict, dataclass
+from multiprocessing import get_context
+
+import numpy as np
+
+from babblegen.worldmodel.episodes import STRATA, Dataset, EpisodeSet, EvaluationError, outcomes
+from babblegen.worldmodel.metrics import mean_displacement, score
+from babblegen.worldmodel.model import TrainSettings, WorldModel, object_state
+from babblegen.worldmodel.planning import PlanningSettings, PlanningTask, plan_scores
+
+NOTHING = "nothing moves"
+
+
+@dataclass
+class Source:
+    name: str
+    datasets: list[Dataset]
+
+
+def held_out(train: EpisodeSet, tests: dict[str, EpisodeSet]) -> EpisodeSet:
+    """``train`` without the episodes whose movement and start a test set holds."""
+    seen = set(np.concatenate([t.identity for t in tests.values()]).tolist())
+    return train.take(np.flatnonzero([i not in seen for i in train.identity]))
+
+
+def check_apart(sources: list[Source], tests: dict[str, list[Dataset]]) -> None:
+    """Test sets must be seeded apart from all training: a test dataset of a training dataset's task and seed (the
+    same run, a copy of it, or another explorer on the same starts) is refused."""
+    trained = {(d.run["task"]["name"], d.seed): d.root for s in sources for d in s.datasets}
+    for name, parts in tests.items():
+        for d in parts:
+            clash = trained.get((d.run["task"]["name"], d.seed))
+            if clash is not None:
+                raise EvaluationError(
+                    f"test set {name!r} ({d.root}) has seed {d.seed}, as the training dataset {clash}: test sets "
+                    f"must be seeded apart from all training"
+                )
+
+
+def budgets(sources: list[Source], attempts: int | None, equal: str) -> tuple[list[dict[str, EpisodeSet]], list[int]]:
+    """Per repeat, each source's training episodes at this budget; and the episodes each repeat trains on."""
+    repeats = max(len(s.datasets) for s in sources)
+    out, sizes = [], []
+    for r in range(repeats):
+        sets = {s.name: s.datasets[r % len(s.datasets)].budget(attempts=attempts) for s in sources}
+        if equal == "episodes":
+            n = min(len(e) for e in sets.values())
+            sets = {name: e.take(np.arange(n)) for name, e in sets.items()}
+        out.append(sets)
+        sizes.append(min(len(e) for e in sets.values()))
+    return out, sizes
+
+
+# --- the work of one model, in a worker process ---------------------------------------------------------------
+
+_shared: dict = {}
+
+
+def _init(tests: dict[str, EpisodeSet], plan: PlanningTask | None, plan_settings: PlanningSettings) -> None:
+    import torch
+
+    torch.set_num_threads(1)
+    _shared.update(tests=tests, plan=plan, plan_settings=plan_settings)
+
+
+def _fit_and_score(job: tuple[str, int, EpisodeSet, TrainSettings]) -> dict:
+    name, repeat, train, settings = job
+    tests, plan = _shared["tests"], _shared["plan"]
+    model = WorldModel.fit(train, settings)
+    mean = mean_displacement(train)
+    out = {"source": name, "repeat": repeat, "episodes": len(train)}
+    out["scores"] = {t: score(model.predict(e), e, mean) for t, e in tests.items()}
+    if plan is not None:
+        out["planning"] = plan_scores(model, plan, _shared["plan_settings"].success_cm)
+    return out
+
+
+def nothing_moves(tests: dict[str, EpisodeSet]) -> dict:
+    """The scores of predicting that nothing moves."""
+    return {t: score(object_state(e.first), e, np.zeros((len(e.scene.objects), 2))) for t, e in tests.items()}
+
+
+def run_experiment(
+    sources: list[Source],
+    tests: dict[str, EpisodeSet],
+    attempt_budgets: list[int | None],
+    equal_modes: list[str],
+    train: TrainSettings,
+    plan: PlanningTask | None,
+    plan_settings: PlanningSettings,
+    workers: int,
+    echo=print,
+) -> dict:
+    """Every (budget, equal mode): per source, the episodes trained on and the scores of each repeat."""
+    blocks, jobs = [], []
+    for attempts in attempt_budgets:
+        for equal in equal_modes:
+            per_repeat, sizes = budgets(sources, attempts, equal)
+            block = {"attempts": attempts, "equal": equal, "sizes": sizes, "sources": {}}
+            for r, sets in enumerate(per_repeat):
+                for name, episodes in sets.items():
+                    settings = TrainSettings(**{**asdict(train), "seed": train.seed + r})
+                    jobs.append((len(blocks), (name, r, held_out(episodes, tests), settings)))
+            blocks.append(block)
+    echo(f"training {len(jobs)} models on {workers} worker(s)")
+    context = get_context("spawn")
+    with ProcessPoolExecutor(
+        workers, mp_context=context, initializer=_init, initargs=(tests, plan, plan_settings)
+    ) as pool:
+        futures = [(b, pool.submit(_fit_and_score, job)) for b, job in jobs]
+        for done, (b, future) in enumerate(futures, start=1):
+            result = future.result()
+            blocks[b]["sources"].setdefault(result["source"], []).append(result)
+            echo(f"  [{done}/{len(jobs)}] {_describe(blocks[b], result)}")
+    tests_info = {}
+    for name, e in tests.items():
+        moved, stratum = outcomes(e)
+        tests_info[name] = {
+            "episodes": len(e),
+            "moved_object_episodes": int(moved.sum()),
+            "strata": {s: int((stratum == i).sum()) for i, s in enumerate(STRATA)},
+        }
+    out = {"tests": tests_info, "nothing_moves": nothing_moves(tests), "blocks": blocks}
+    if plan is not None:
+        out["planning"] = {"goals": int(len(plan.goal_object)), "candidates": int(plan.feasible.shape[1])}
+    return out
+
+
+def _describe(block: dict, result: dict) -> str:
+    budget = "whole datasets" if block["attempts"] is None else f"{block['attempts']} attempts"
+    first = next(iter(result["scores"].values()))["all"]
+    plan = f", planning {result['planning']['model']:.2f}" if "planning" in result else ""
+    return (
+        f"{result['source']} (repeat {result['repeat'] + 1}, {budget}, equal {block['equal']}, "
+        f"{result['episodes']} episodes): F1 {first['f1']:.3f}, error {first['ratio']:.2f}x nothing moves{plan}"
+    )

@@ -1,0 +1,84 @@
+"""Scores of a world model's predictions on a test set, overall and per outcome stratum.
+
+For every object in every test episode the model predicts where it ends up (x, y, z, yaw). From that:
+
+- ``f1``: F1 of "moves" (the predicted displacement, as the truth's, over `MOVED`) over object-episodes;
+- ``err_cm``: the median error of the predicted final (x, y) over the object-episodes that truly moved, beside
+  ``nothing_cm``, the same for "nothing moves" (the true displacement), and ``mean_cm``, for the training set's mean
+  displacement of that object (over its moved episodes); ``ratio`` is ``err_cm / nothing_cm`` and ``skill`` is
+  ``1 - ratio`` (0: no better than "nothing moves"; 1: exact), ``mean_skill`` the same against the mean;
+- ``yaw_deg``: the median error of the final yaw of the moved objects that have one (boxes, modulo their symmetry);
+- ``false_moves``: the share of object-episodes that did not move but are predicted to.
+
+Each is reported on the whole test set and on each stratum (`STRATA`); ``macro`` averages the strata that have
+episodes (F1 and the error ratio over those with moved objects).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from babblegen.worldmodel.episodes import MOVED, STRATA, EpisodeSet, outcomes
+from babblegen.worldmodel.model import object_state, wrap
+
+
+def mean_displacement(train: EpisodeSet) -> np.ndarray:
+    """(K, 2) each object's mean (dx, dy) over the training episodes in which it moved (0 where it never did)."""
+    moved, _ = outcomes(train)
+    d = train.final[..., :2] - train.first[..., :2]
+    counts = moved.sum(axis=0)
+    return np.where(counts[:, None] > 0, (d * moved[..., None]).sum(axis=0) / np.maximum(counts, 1)[:, None], 0.0)
+
+
+def _median(values: np.ndarray) -> float:
+    return float(np.median(values)) if values.size else float("nan")
+
+
+def _scores(pred: np.ndarray, first: np.ndarray, final: np.ndarray, moved: np.ndarray, mean: np.ndarray, sym):
+    """The scores of one group of episodes: ``pred``, ``first``, ``final`` (E, K, 4) states."""
+    pred_moved = np.linalg.norm(pred[..., :3] - first[..., :3], axis=-1) > MOVED
+    tp = float((pred_moved & moved).sum())
+    denominator = float(pred_moved.sum() + moved.sum())
+    err = np.linalg.norm(pred[..., :2] - final[..., :2], axis=-1)[moved] * 100
+    nothing = np.linalg.norm(first[..., :2] - final[..., :2], axis=-1)[moved] * 100
+    guess = first[..., :2] + mean[None]
+    mean_err = np.linalg.norm(guess - final[..., :2], axis=-1)[moved] * 100
+    has_yaw = moved & (sym > 0)[None]
+    period = np.where(sym > 0, sym, 2 * np.pi)[None]
+    yaw_err = np.abs(wrap(pred[..., 3] - final[..., 3], period))[has_yaw]
+    still = ~moved
+    out = {
+        "episodes": int(len(pred)),
+        "moved": int(moved.sum()),
+        "f1": 2 * tp / denominator if moved.any() else float("nan"),
+        "err_cm": _median(err),
+        "nothing_cm": _median(nothing),
+        "mean_cm": _median(mean_err),
+        "yaw_deg": float(np.degrees(_median(yaw_err))),
+        "false_moves": float(pred_moved[still].mean()) if still.any() else float("nan"),
+    }
+    out["ratio"] = out["err_cm"] / out["nothing_cm"] if moved.any() else float("nan")
+    out["skill"] = 1 - out["ratio"]
+    out["mean_skill"] = 1 - out["err_cm"] / out["mean_cm"] if moved.any() else float("nan")
+    return out
+
+
+def score(pred: np.ndarray, test: EpisodeSet, mean: np.ndarray) -> dict:
+    """The scores of predicted final states ``pred`` (E, K, 4) on ``test``: ``all``, each stratum, ``macro``."""
+    first, final = object_state(test.first), object_state(test.final)
+    moved, stratum = outcomes(test)
+    sym = test.scene.yaw_symmetry
+    out = {"all": _scores(pred, first, final, moved, mean, sym)}
+    for i, name in enumerate(STRATA):
+        pick = stratum == i
+        if pick.any():
+            out[name] = _scores(pred[pick], first[pick], final[pick], moved[pick], mean, sym)
+    present = [out[s] for s in STRATA if s in out]
+    with_moves = [s for s in present if s["moved"]]
+    out["macro"] = {
+        "f1": float(np.mean([s["f1"] for s in with_moves])) if with_moves else float("nan"),
+        "ratio": float(np.mean([s["ratio"] for s in with_moves])) if with_moves else float("nan"),
+        "false_moves": float(np.nanmean([s["false_moves"] for s in present])) if present else float("nan"),
+    }
+    out["macro"]["skill"] = 1 - out["macro"]["ratio"]
+    return out

@@ -1,0 +1,318 @@
+"""The world model the evaluation trains: from the scene an episode starts in (every object's pose in its first
+frame) and the commanded joint trajectory, predict every object's pose in every later frame, and so where each one
+ends up.
+
+Two learned parts, both fitted on the training episodes alone:
+
+- `ArmFilter`, the arm's response to its commands: per joint, a linear filter of the commanded target, the last
+  step and the target before (least squares over every training frame). The joint controller lags its targets by
+  about two frames; the filter predicts the arm's joints from the commands alone to about a millimetre at the tool.
+- `StepModel`, the objects' response to the arm and to each other, one frame at a time, one network shared by
+  every object (`features`): in the object's own frame (its position; its yaw modulo its symmetry), the arm's
+  nearest collision spheres where they start and end the frame, its own last motion, height and the table's
+  edges, and the other objects' places and last motions. It predicts whether the object moves this frame and, if
+  so, by how much (x, y, yaw, z in its frame). Trained on every recorded frame with the true poses (teacher
+  forcing); `rollout` runs it from the first frame on its own predictions, a frame at a time.
+
+What is learned for one object at one place holds for every object and place: that is what lets data from many
+starts predict starts it never saw, and data of many pushes predict where a push ends.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from torch import nn
+
+from babblegen.worldmodel.episodes import EpisodeSet, Scene, yaw_of
+
+NEAREST = 8  # arm spheres per object and frame the network sees (the nearest to it over the frame's motion)
+POS, VEL = 10.0, 100.0  # positions in decimetres, motions per frame in centimetres: inputs near unit scale
+BUSY_GAP = 0.1  # metres: the arm passes nearer than this to an object, a row worth learning from
+QUIET = 8  # training keeps one in this many rows where nothing is near or moving, weighted by this
+MOVING = 0.001  # metres (or radians / 10) in one frame: the object moves in that frame
+
+
+def wrap(angle: np.ndarray, period: float | np.ndarray = 2 * np.pi) -> np.ndarray:
+    """Angles to [-period / 2, period / 2)."""
+    period = np.asarray(period, dtype=np.float64)
+    safe = np.where(period > 0, period, 2 * np.pi)
+    return (angle + safe / 2) % safe - safe / 2
+
+
+class ArmFilter:
+    """Per joint j: ``s[t+1] - s[t] = c0 (a[t] - s[t]) + c1 (s[t] - s[t-1]) + c2 (a[t-1] - s[t])``, where ``a`` is
+    the commanded target and ``s`` the joint; fitted by least squares, run from the first frame's joints."""
+
+    def __init__(self, coef: np.ndarray):
+        self.coef = np.asarray(coef, dtype=np.float64)  # (7, 3)
+
+    @staticmethod
+    def _terms(a: np.ndarray, s: np.ndarray, s_prev: np.ndarray, a_prev: np.ndarray) -> np.ndarray:
+        return np.stack([a - s, s - s_prev, a_prev - s], axis=-1)
+
+    @classmethod
+    def fit(cls, actions: list[np.ndarray], states: list[np.ndarray]) -> ArmFilter:
+        terms, steps = [], []
+        for a, s in zip(actions, states, strict=True):
+            s_prev = np.vstack([s[:1], s[:-2]])
+            a_prev = np.vstack([s[:1], a[:-2]])
+            terms.append(cls._terms(a[:-1], s[:-1], s_prev, a_prev))
+            steps.append(s[1:] - s[:-1])
+        x, y = np.concatenate(terms), np.concatenate(steps)
+        return cls(np.stack([np.linalg.lstsq(x[:, j], y[:, j], rcond=None)[0] for j in range(x.shape[1])]))
+
+    def run(self, actions: np.ndarray, first: np.ndarray) -> np.ndarray:
+        """(T, 7) predicted joints for commands (T, 7), starting at ``first``."""
+        out = np.empty_like(actions)
+        out[0] = s_prev = a_prev = first
+        for t in range(len(actions) - 1):
+            s = out[t]
+            out[t + 1] = s + np.einsum("jk,jk->j", self._terms(actions[t], s, s_prev, a_prev), self.coef)
+            s_prev, a_prev = s, actions[t]
+        return out
+
+
+class ArmSpheres:
+    """The arm's collision spheres (the planner's model of its links) for joint configurations."""
+
+    def __init__(self, robot_uid: str):
+        from babblegen.tasks import get_robot
+        from babblegen.world.collision import SphereCollisionModel
+        from babblegen.world.kinematics import ArmKinematics, UrdfModel
+
+        robot = get_robot(robot_uid)
+        self.model = SphereCollisionModel(
+            ArmKinematics(UrdfModel.load(robot.urdf), robot.base_link, robot.tool_link), []
+        )
+        self.radii = self.model.radii
+
+    def __call__(self, q: np.ndarray) -> np.ndarray:
+        """(T, S, 3) sphere centres, world frame."""
+        return self.model.sphere_centres(np.asarray(q, dtype=np.float64))
+
+
+@dataclass
+class Frames:
+    """A frame-by-frame picture of episodes: per episode the arm's spheres at every frame (T, S, 3), and the
+    objects' state (T, K, 4: x, y, z, yaw) where known."""
+
+    spheres: list[np.ndarray]
+    state: list[np.ndarray] | None
+
+
+def object_state(poses: np.ndarray) -> np.ndarray:
+    """(..., K, 4) x, y, z, yaw of (..., K, 7) poses."""
+    return np.concatenate([poses[..., :3], yaw_of(poses[..., 3:])[..., None]], axis=-1)
+
+
+def features(
+    scene: Scene, radii: np.ndarray, now: np.ndarray, before: np.ndarray, arm0: np.ndarray, arm1: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Inputs of the step network for N scenes at one frame: ``now`` and ``before`` (N, K, 4) the objects' states
+    in this frame and the one before, ``arm0`` and ``arm1`` (N, S, 3) the arm's spheres in this frame and the next.
+    Returns (N, K, F), one row per object, in its own frame (see the module docstring), and (N, K) how near the
+    arm's surface passes the object's centre this frame, metres."""
+    n, k = now.shape[:2]
+    sym = scene.yaw_symmetry
+    frame_yaw = np.where(sym > 0, wrap(now[..., 3], sym), 0.0)  # (N, K): each object's frame
+    cos, sin = np.cos(frame_yaw), np.sin(frame_yaw)
+
+    def to_frame(v: np.ndarray) -> np.ndarray:
+        """(N, K, ..., 2) world xy offsets, each in object k's frame."""
+        shape = (n, k) + (1,) * (v.ndim - 3)
+        cc, ss = cos.reshape(shape), sin.reshape(shape)
+        return np.stack([cc * v[..., 0] + ss * v[..., 1], cc * v[..., 1] - ss * v[..., 0]], axis=-1)
+
+    # the arm: its spheres relative to the object's centre, the nearest first over the segment each sweeps
+    rel0 = arm0[:, None] - now[:, :, None, :3]  # (N, K, S, 3)
+    rel1 = arm1[:, None] - now[:, :, None, :3]
+    seg = rel1 - rel0
+    along = np.clip(-(rel0 * seg).sum(-1) / np.maximum((seg * seg).sum(-1), 1e-12), 0.0, 1.0)
+    gap = np.linalg.norm(rel0 + along[..., None] * seg, axis=-1) - radii
+    near = np.argsort(gap, axis=-1, kind="stable")[..., :NEAREST]  # (N, K, M)
+    r0 = np.take_along_axis(rel0, near[..., None], axis=2)
+    r1 = np.take_along_axis(rel1, near[..., None], axis=2)
+    arm = (
+        np.concatenate(
+            [to_frame(r0[..., :2]), r0[..., 2:], to_frame(r1[..., :2]), r1[..., 2:], radii[near][..., None]], axis=-1
+        ).reshape(n, k, -1)
+        * POS
+    )
+    # the object itself: its last motion, its height over resting, the table's edges
+    rest = scene.top + scene.half_heights
+    motion = now - before
+    period = np.where(sym > 0, sym, 2 * np.pi)
+    own = np.concatenate(
+        [
+            to_frame(motion[:, :, None, :2])[:, :, 0] * VEL,
+            wrap(motion[..., 3:4], period[None, :, None]) * VEL / 10,
+            motion[..., 2:3] * VEL,
+            (now[..., 2:3] - rest[None, :, None]) * POS,
+        ],
+        axis=-1,
+    )
+    x0, x1, y0, y1 = scene.table
+    edges = np.stack([now[..., 0] - x0, x1 - now[..., 0], now[..., 1] - y0, y1 - now[..., 1]], axis=-1) * POS
+    # the others, in the scene's order: where each stands, its last motion and height, in this object's frame
+    rel = now[:, None, :, :2] - now[:, :, None, :2]  # (N, K, K, 2): object j relative to object i
+    vel = np.broadcast_to(motion[:, None, :, :2], rel.shape)
+    high = np.broadcast_to((now[..., 2] - rest[None])[:, None, :, None], (n, k, k, 1))
+    pair = np.concatenate([to_frame(rel) * POS, to_frame(vel) * VEL, high * POS], axis=-1)
+    pair = pair[:, ~np.eye(k, dtype=bool)].reshape(n, k, (k - 1) * 5)
+    which = np.broadcast_to(np.eye(k), (n, k, k))
+    nearest = np.take_along_axis(gap, near[..., :1], axis=2)[..., 0]
+    return np.concatenate([which, own, edges, pair, arm], axis=-1).astype(np.float32), nearest
+
+
+def targets(scene: Scene, now: np.ndarray, after: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """What the step network learns for (N, K, 4) states in a frame and the next: the motion in the object's frame
+    (dx, dy in cm, dyaw in rad / 10, dz in cm), and whether it moves at all."""
+    sym = scene.yaw_symmetry
+    frame_yaw = np.where(sym > 0, wrap(now[..., 3], sym), 0.0)
+    cos, sin = np.cos(frame_yaw), np.sin(frame_yaw)
+    d = after - now
+    dyaw = np.where(sym > 0, wrap(d[..., 3], np.where(sym > 0, sym, 2 * np.pi)), 0.0)
+    out = np.stack(
+        [
+            (cos * d[..., 0] + sin * d[..., 1]) * VEL,
+            (cos * d[..., 1] - sin * d[..., 0]) * VEL,
+            dyaw * VEL / 10,
+            d[..., 2] * VEL,
+        ],
+        axis=-1,
+    )
+    moving = (np.abs(out) > MOVING * VEL).any(axis=-1)
+    return out.astype(np.float32), moving
+
+
+def apply(scene: Scene, now: np.ndarray, motion: np.ndarray) -> np.ndarray:
+    """(N, K, 4) states after the step network's (N, K, 4) motions (in each object's frame)."""
+    sym = scene.yaw_symmetry
+    frame_yaw = np.where(sym > 0, wrap(now[..., 3], sym), 0.0)
+    cos, sin = np.cos(frame_yaw), np.sin(frame_yaw)
+    dx, dy = motion[..., 0] / VEL, motion[..., 1] / VEL
+    out = now.copy()
+    out[..., 0] += cos * dx - sin * dy
+    out[..., 1] += sin * dx + cos * dy
+    out[..., 3] += motion[..., 2] * 10 / VEL
+    out[..., 2] += motion[..., 3] / VEL
+    return out
+
+
+class StepNet(nn.Module):
+    """Per object and frame: a "moves" logit and the motion if it does (4 numbers, `targets`' units)."""
+
+    def __init__(self, n_in: int, hidden: int = 256):
+        super().__init__()
+        self.net = nn.Sequential(
+            nn.Linear(n_in, hidden), nn.SiLU(), nn.Linear(hidden, hidden), nn.SiLU(), nn.Linear(hidden, 5)
+        )
+
+    def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        out = self.net(x)
+        return out[..., 0], out[..., 1:]
+
+
+@dataclass
+class TrainSettings:
+    steps: int = 4000  # gradient steps, whatever the data's size: every source's model gets the same training
+    batch: int = 512
+    hidden: int = 256
+    lr: float = 2e-3
+    seed: int = 0
+
+
+class WorldModel:
+    """`ArmFilter` and `StepNet` together; `fit` on episodes, `predict` where objects end up."""
+
+    def __init__(self, scene: Scene, arm: ArmFilter, net: StepNet, mean: np.ndarray, std: np.ndarray):
+        self.scene, self.arm, self.net, self.mean, self.std = scene, arm, net, mean, std
+        self.spheres = ArmSpheres(scene.robot)
+
+    @classmethod
+    def fit(cls, episodes: EpisodeSet, settings: TrainSettings | None = None) -> WorldModel:
+        s = settings or TrainSettings()
+        scene = episodes.scene
+        torch.manual_seed(s.seed)
+        rng = np.random.default_rng(s.seed)
+        arm = ArmFilter.fit(episodes.actions, episodes.states)
+        spheres = ArmSpheres(scene.robot)
+        xs, ys, ms, ws = [], [], [], []
+        for q, poses in zip(episodes.states, episodes.poses, strict=True):
+            state = object_state(poses)
+            before = np.concatenate([state[:1], state[:-2]])
+            balls = spheres(q)
+            x, gap = features(scene, spheres.radii, state[:-1], before, balls[:-1], balls[1:])
+            y, m = targets(scene, state[:-1], state[1:])
+            _, was = targets(scene, before, state[:-1])
+            # quiet rows (nothing near or moving, before or now) teach little but "stays": keep one in QUIET
+            busy = (gap < BUSY_GAP) | m | was | (m | was).any(axis=1, keepdims=True)
+            keep = busy | (rng.random(busy.shape) < 1 / QUIET)
+            xs.append(x[keep])
+            ys.append(y[keep])
+            ms.append(m[keep])
+            ws.append(np.where(busy[keep], 1.0, QUIET))
+        x, y, m, w = np.concatenate(xs), np.concatenate(ys), np.concatenate(ms), np.concatenate(ws)
+        mean, std = x.mean(axis=0), x.std(axis=0) + 1e-3
+        net = StepNet(x.shape[1], s.hidden)
+        opt = torch.optim.AdamW(net.parameters(), lr=s.lr, weight_decay=1e-4)
+        xt = torch.from_numpy((x - mean) / std)
+        yt, mt = torch.from_numpy(y), torch.from_numpy(m.astype(np.float32))
+        wt = torch.from_numpy(w.astype(np.float32))
+        sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=s.lr, total_steps=s.steps)
+        order = torch.zeros(0, dtype=torch.int64)
+        for step in range(s.steps):
+            at = (step * s.batch) % max(len(x) - len(x) % s.batch, s.batch)
+            if at == 0:
+                order = torch.from_numpy(rng.permutation(len(x)))
+            idx = order[at : at + s.batch]
+            logit, motion = net(xt[idx])
+            weight = wt[idx] / wt[idx].mean()
+            loss = nn.functional.binary_cross_entropy_with_logits(logit, mt[idx], weight=weight)
+            moving = mt[idx] > 0
+            if moving.any():
+                loss = loss + nn.functional.smooth_l1_loss(motion[moving], yt[idx][moving])
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+            sched.step()
+        return cls(scene, arm, net.eval(), mean, std)
+
+    def predict(self, episodes: EpisodeSet) -> np.ndarray:
+        """(E, K, 4) every object's x, y, z, yaw in each episode's last frame, predicted from its first frame's
+        poses and joints and its commanded joints."""
+        return self.rollout(
+            [object_state(p[0]) for p in episodes.poses], episodes.actions, [s[0] for s in episodes.states]
+        )
+
+    def rollout(self, first: list[np.ndarray], actions: list[np.ndarray], joints0: list[np.ndarray]) -> np.ndarray:
+        """Final (E, K, 4) states of episodes given their first states (K, 4), commands (T, 7), first joints."""
+        lengths = np.array([len(a) for a in actions])
+        horizon = int(lengths.max())
+        e, k = len(actions), len(first[0])
+        balls = np.zeros((e, horizon, len(self.spheres.radii), 3))
+        for i, (a, q0) in enumerate(zip(actions, joints0, strict=True)):
+            q = self.arm.run(a, q0)
+            balls[i] = self.spheres(np.vstack([q, np.repeat(q[-1:], horizon - len(q), axis=0)]))
+        now = np.stack(first)
+        before = now.copy()
+        final = now.copy()
+        with torch.no_grad():
+            for t in range(horizon - 1):
+                live = np.flatnonzero(lengths - 1 > t)
+                if not len(live):
+                    break
+                x, _ = features(
+                    self.scene, self.spheres.radii, now[live], before[live], balls[live, t], balls[live, t + 1]
+                )
+                logit, motion = self.net(torch.from_numpy((x.reshape(-1, x.shape[-1]) - self.mean) / self.std))
+                motion = motion.numpy().reshape(len(live), k, 4) * (logit.numpy() > 0).reshape(len(live), k, 1)
+                before[live] = now[live]
+                now[live] = apply(self.scene, now[live], motion)
+                ended = live[lengths[live] - 2 == t]
+                final[ended] = now[ended]
+        final[lengths == 1] = now[lengths == 1]
+        return final

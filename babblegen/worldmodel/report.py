@@ -1,0 +1,161 @@
+"""The evaluation's results as tables (``evaluation.md``), numbers (``evaluation.json``) and a figure of each score
+against the attempt budget (``budgets.png``)."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from babblegen.worldmodel.episodes import STRATA
+from babblegen.worldmodel.experiment import NOTHING
+
+
+def _values(results: list[dict], path: tuple[str, ...]) -> np.ndarray:
+    out = []
+    for r in results:
+        v = r
+        for key in path:
+            v = v.get(key, {}) if isinstance(v, dict) else {}
+        out.append(v if isinstance(v, int | float) else math.nan)
+    return np.asarray(out, dtype=float)
+
+
+def cell(values: np.ndarray, digits: int = 3) -> str:
+    """mean ± std of the values that are numbers; "-" if none is."""
+    v = values[~np.isnan(values)]
+    if not len(v):
+        return "-"
+    return f"{v.mean():.{digits}f} ± {v.std():.{digits}f}" if len(v) > 1 else f"{v.mean():.{digits}f}"
+
+
+def _table(header: list[str], rows: list[list[str]]) -> list[str]:
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    return lines + ["| " + " | ".join(row) + " |" for row in rows]
+
+
+def block_title(block: dict) -> str:
+    budget = "the whole datasets" if block["attempts"] is None else f"{block['attempts']:,} attempts"
+    sizes = block["sizes"]
+    kind = (
+        "equal attempts" if block["equal"] == "attempts" else f"equal episodes ({min(sizes)}-{max(sizes)} per source)"
+    )
+    return f"{budget}, {kind}"
+
+
+def markdown(result: dict) -> str:
+    tests = list(result["tests"])
+    lines = ["# What each dataset teaches a world model", ""]
+    lines += [
+        'Per training source, mean ± std over repeats. F1: of "moves" (over 1 cm) per object and episode. Error: '
+        'median error of the predicted final (x, y) of the objects that moved, as a multiple of "nothing moves" '
+        "(below 1: better than predicting no motion; cm in evaluation.json). Macro: the mean over the outcome "
+        "strata that have moved objects. Planning: goals reached within "
+        f"{result['settings']['planning']['success_cm']:g} cm by the candidate the model chose.",
+        "",
+        "Test sets: "
+        + "; ".join(
+            f"**{t}** ({info['episodes']} episodes, {info['moved_object_episodes']} moved object-episodes; strata "
+            + ", ".join(f"{s} {n}" for s, n in info["strata"].items())
+            + ")"
+            for t, info in result["tests"].items()
+        )
+        + ".",
+        "",
+    ]
+    if "planning" in result:
+        p = result["planning"]
+        lines += [f"Planning: {p['goals']} goals x {p['candidates']} candidates from {p['test']}.", ""]
+    for block in result["blocks"]:
+        lines += [f"## {block_title(block)}", ""]
+        header = ["trained on", "episodes"]
+        for t in tests:
+            header += [f"{t}: F1", f"{t}: error", f"{t}: macro F1"]
+        planning = "planning" in result
+        if planning:
+            header += ["planning: model", "oracle", "random", "share of oracle"]
+        rows = []
+        for name, results in block["sources"].items():
+            row = [name, cell(_values(results, ("episodes",)), 0)]
+            for t in tests:
+                row += [
+                    cell(_values(results, ("scores", t, "all", "f1"))),
+                    cell(_values(results, ("scores", t, "all", "ratio")), 2),
+                    cell(_values(results, ("scores", t, "macro", "f1"))),
+                ]
+            if planning:
+                row += [cell(_values(results, ("planning", k)), 2) for k in ("model", "oracle", "random", "share")]
+            rows.append(row)
+        nothing = [NOTHING, "-"] + ["0", "1", "0"] * len(tests)
+        rows.append(nothing + (["-"] * 4 if planning else []))
+        lines += _table(header, rows) + [""]
+        t0 = tests[0]
+        header = ["trained on"] + [f"{s}: F1 / error" for s in STRATA if s != "nothing_moved"]
+        header += ["nothing_moved: false moves"]
+        rows = []
+        for name, results in block["sources"].items():
+            row = [name]
+            for s in STRATA[1:]:
+                f1 = cell(_values(results, ("scores", t0, s, "f1")))
+                ratio = cell(_values(results, ("scores", t0, s, "ratio")), 2)
+                row.append(f"{f1} / {ratio}")
+            row.append(cell(_values(results, ("scores", t0, "nothing_moved", "false_moves"))))
+            rows.append(row)
+        lines += [f"By outcome on {t0}:", ""] + _table(header, rows) + [""]
+    return "\n".join(lines)
+
+
+def figure(result: dict, path: Path) -> bool:
+    """Each score against the attempt budget, per source (equal attempts solid, equal episodes dashed); False
+    when there is one budget or none, and nothing is drawn."""
+    budgets = sorted({b["attempts"] for b in result["blocks"] if b["attempts"] is not None})
+    if len(budgets) < 2:
+        return False
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    t0 = next(iter(result["tests"]))
+    panels = [
+        (("scores", t0, "all", "f1"), f"F1 of moves ({t0})"),
+        (("scores", t0, "all", "ratio"), f"error / nothing moves ({t0})"),
+    ]
+    if "planning" in result:
+        panels.append((("planning", "model"), "planning success"))
+    fig, axes = plt.subplots(1, len(panels), figsize=(5 * len(panels), 4), squeeze=False)
+    names = list(dict.fromkeys(n for b in result["blocks"] for n in b["sources"]))
+    colors = {n: plt.cm.tab10(i % 10) for i, n in enumerate(names)}
+    for ax, (key, title) in zip(axes[0], panels, strict=True):
+        for equal, style in (("attempts", "-"), ("episodes", "--")):
+            for name in names:
+                xs, ys, es = [], [], []
+                for b in result["blocks"]:
+                    if b["equal"] == equal and b["attempts"] in budgets and name in b["sources"]:
+                        v = _values(b["sources"][name], key)
+                        xs.append(b["attempts"])
+                        ys.append(np.nanmean(v))
+                        es.append(np.nanstd(v))
+                if xs:
+                    label = f"{name} (equal {equal})"
+                    ax.errorbar(xs, ys, yerr=es, ls=style, marker="o", color=colors[name], label=label, capsize=3)
+        ax.set_xlabel("attempts")
+        ax.set_title(title)
+        ax.grid(alpha=0.3)
+    axes[0][0].legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return True
+
+
+def write(result: dict, out: Path) -> list[Path]:
+    out.mkdir(parents=True, exist_ok=True)
+    written = [out / "evaluation.json", out / "evaluation.md"]
+    written[0].write_text(json.dumps(result, indent=1, default=float) + "\n")
+    written[1].write_text(markdown(result) + "\n")
+    if figure(result, out / "budgets.png"):
+        written.append(out / "budgets.png")
+    return written
