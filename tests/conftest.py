@@ -1,7 +1,8 @@
 """Shared fixtures: small real datasets made once per test session with the real CLI; the test tiers.
 
-`small_noveb_dataset` (NovEB, with Rerun recordings) and `small_random_dataset` (random babbling) each hold 24
-attempts at 64x64 pixels, committed after every generation. Treat them as read-only: copy what a test changes.
+`small_noveb_dataset` (NovEB, with Rerun recordings) and `small_random_dataset` (random babbling), both of seed 0,
+and `small_heldout_dataset` (uniform random waypoints from varied starts, seed 7) each hold 24 attempts at 64x64
+pixels, committed after every generation. Treat them as read-only: copy what a test changes.
 
 Two tiers: tests that run the simulator are marked `sim` (here for those that use a simulated fixture,
 explicitly for the others); `pytest -m "not sim"` is the fast tier, `pytest` runs both.
@@ -28,7 +29,9 @@ def pytest_sessionfinish(session, exitstatus) -> None:
 
 
 # fixtures that build a World or make a dataset with the simulator
-SIM_FIXTURES = {"small_noveb_dataset", "small_random_dataset", "small_run", "world", "push", "one_worker"}
+SIM_FIXTURES = {
+    "small_noveb_dataset", "small_random_dataset", "small_heldout_dataset", "small_run", "world", "push", "one_worker"
+}  # fmt: skip
 
 # 6 children per generation (the default is 128): 24 attempts then span several generations and commit points
 SMALL_RUN = ["--workers", "1", "--max-attempts", "24", "--checkpoint-every", "1", "--children", "6"]
@@ -50,6 +53,14 @@ def small_noveb_dataset(tmp_path_factory) -> Path:
 @pytest.fixture(scope="session")
 def small_random_dataset(tmp_path_factory) -> Path:
     return _generate(tmp_path_factory.mktemp("random") / "ds", "--explorer", "random")
+
+
+@pytest.fixture(scope="session")
+def small_heldout_dataset(tmp_path_factory) -> Path:
+    """Uniform random waypoints from varied starts, seeded apart from the two above (a world model's test set)."""
+    return _generate(
+        tmp_path_factory.mktemp("heldout") / "ds", "--explorer", "random_waypoints", "--starts", "varied", "--seed", "7"
+    )
 
 
 # modules whose every test runs the simulator: the fast tier does not even import them (SAPIEN, OMPL)

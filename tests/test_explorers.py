@@ -564,3 +564,23 @@ def test_reach_redraws_spend_no_attempt_on_a_mutated_waypoint_out_of_reach():
         make_explorer("noveb", {"reach_redraws": 3}, 0, PR2_LIMITS, START)
     with pytest.raises(ValueError):
         NovEBConfig(reach_redraws=-1)
+
+
+def test_independent_share_draws_children_as_random_waypoints_does():
+    """A share of 0 breeds exactly as before; a share of 1 draws every child independently: no parent, 1 to 4
+    waypoints uniform in the workspace box; with varied starts each from a new start."""
+    plain, zero = make_noveb(seed=3), make_noveb(seed=3, independent_share=0.0)
+    assert run_rounds(plain, 4) == run_rounds(zero, 4)
+    ex = make_noveb(seed=3, independent_share=1.0, children=200)
+    tell_in_order(ex, ex.ask())
+    children = ex.ask()
+    assert children and all(c.parent is None for c in children)
+    lengths = [len(c.genome) for c in children]
+    assert set(lengths) == {1, 2, 3, 4}
+    assert all(((c.genome >= 0) & (c.genome < 1)).all() for c in children)
+    half = make_noveb(seed=3, independent_share=0.25, children=400)
+    tell_in_order(half, half.ask())
+    independent = sum(c.parent is None for c in half.ask())
+    assert 70 < independent < 130  # about a quarter of the 400 children (bred ones may be clones, never asked)
+    with pytest.raises(ValueError, match="independent_share"):
+        NovEBConfig(independent_share=1.5)

@@ -99,6 +99,10 @@ class NovEBConfig:
     start_mutation_prob: float = 0.5
     start_mutation_of: str = "new_genomes"
     start_mutation: str = "new_layout"
+    # the share of each generation's children drawn independently of the parents instead, as `random_waypoints`
+    # draws (1 to 4 waypoints uniform in the workspace box; with varied starts, from a new start): the random
+    # emitter of quality-diversity libraries (0: every child is bred, the paper)
+    independent_share: float = 0.0
 
     def __post_init__(self) -> None:
         if int(self.population) != self.population or self.population < 2:
@@ -111,7 +115,8 @@ class NovEBConfig:
             raise ValueError(f"generations must be an integer >= 1, got {self.generations}")
         if int(self.k) != self.k or self.k < 1:
             raise ValueError(f"k must be an integer >= 1, got {self.k}")
-        for name in ("mutation_prob", "extend_prob", "remove_prob", "crossover_prob", "start_mutation_prob"):
+        probabilities = ("mutation_prob", "extend_prob", "remove_prob", "crossover_prob", "start_mutation_prob")
+        for name in (*probabilities, "independent_share"):
             p = getattr(self, name)
             if not 0.0 <= p <= 1.0:
                 raise ValueError(f"{name} must be a probability in [0, 1], got {p}")
@@ -150,6 +155,7 @@ def upgrade_stored_config(config: dict[str, Any]) -> dict[str, Any]:
     config.setdefault("max_waypoints", None)  # ... without bound
     config.setdefault("remove_above", 1)  # stored before the setting: any genome of 2 or more could lose one
     config.setdefault("reach_redraws", 0)  # stored before the setting: a waypoint out of reach was run as drawn
+    config.setdefault("independent_share", 0.0)  # stored before the setting: every child was bred
     if "keep_fraction" in config:
         kept = float(config.pop("keep_fraction"))
         config.setdefault("children", int(round(int(config.get("population", 12)) * (1.0 / kept - 1.0))))
@@ -157,6 +163,7 @@ def upgrade_stored_config(config: dict[str, Any]) -> dict[str, Any]:
     return config
 
 
+INDEPENDENT_WAYPOINTS = 4  # an independent child has 1 to this many waypoints, as `random_waypoints` draws
 TIE_BREAKS = ("newest", "oldest", "random", "shortest")
 START_MUTATION_OF = ("new_genomes", "all_children")
 START_MUTATIONS = ("move_one", "new_layout")
@@ -222,7 +229,7 @@ class NovEB(ArchiveExplorer):
             proposals = self._make_children()
         return [(KIND_WAYPOINTS, g, p, start) for g, p, start in proposals]
 
-    def _make_children(self) -> list[tuple[np.ndarray, int, Start | StartDraw | None]]:
+    def _make_children(self) -> list[tuple[np.ndarray, int | None, Start | StartDraw | None]]:
         """Children of the current parents. A crossover child runs from the start of the parent whose first
         waypoints it keeps (the tournament's first winner), as any other child does, unless a start mutation
         draws it a new one."""
@@ -259,6 +266,11 @@ class NovEB(ArchiveExplorer):
             if varied and may_move and draws[i, 3] < cfg.start_mutation_prob:
                 start = StartDraw(start if cfg.start_mutation == "move_one" else None)
             children.append((np.array(g, dtype=np.float64), int(self._parent_index[p]), start))
+        if cfg.independent_share > 0:  # drawn after the bred children, so that a share of 0 draws as before
+            independent = np.flatnonzero(self.rng.random(n) < cfg.independent_share)
+            counts = self.rng.integers(1, INDEPENDENT_WAYPOINTS + 1, size=len(independent))
+            for i, count in zip(independent, counts, strict=True):
+                children[i] = (self.rng.random((int(count), 3)), None, NEW_START if varied else None)
         return children
 
     def tell(self, candidates: list[Candidate], descriptors: list[np.ndarray | None]) -> list[Evaluation]:
