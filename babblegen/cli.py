@@ -137,6 +137,20 @@ def build_parser() -> argparse.ArgumentParser:
         help=f"waypoints a genome may grow to; 0: no bound (the paper) [default: {_N.max_waypoints or 0}]",
     )
     g.add_argument(
+        "--independent-share",
+        type=_prob,
+        default=None,
+        help="share of each generation's children drawn independently, as random_waypoints draws, instead of "
+        f"bred (0: every child bred, the paper) [default: {_N.independent_share}]",
+    )
+    g.add_argument(
+        "--start-from-end",
+        type=_prob,
+        default=None,
+        help="with varied starts, the share of start mutations that start from the scene the parent's movement "
+        f"left instead of a new layout [default: {_N.start_from_end}]",
+    )
+    g.add_argument(
         "--width", type=_positive("--width"), default=None, help=f"camera width [default: {_W.camera_width}]"
     )
     g.add_argument(
@@ -249,6 +263,8 @@ def _overrides(args: argparse.Namespace) -> dict:
             "remove_prob": args.remove_prob,
             "remove_above": args.remove_above,
             "max_waypoints": args.max_waypoints,
+            "independent_share": args.independent_share,
+            "start_from_end": args.start_from_end,
         },
         "world": {"camera_width": args.width, "camera_height": args.height, "fps": args.fps, "starts": args.starts},
     }

@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from babblegen.config import ConfigError, RunConfig, resumed_config
-from babblegen.exporters.sidecar import attempt_row, clone_row
+from babblegen.exporters.sidecar import attempt_row, clone_row, read_attempts, recorded_poses
 from babblegen.interrupts import Interrupted, Interrupts, StartupInterrupts
 from babblegen.outputs import RunOutputs
 from babblegen.provenance import machine, versions
@@ -95,7 +95,7 @@ def check_output(out: Path, resume: bool) -> None:
 
 
 def command_for(candidate) -> Command:
-    start = None if candidate.start is None else candidate.start.layout
+    start = None if candidate.start is None else candidate.start.placement
     return Command(candidate.kind, np.asarray(candidate.genome, dtype=np.float64), start)
 
 
@@ -202,6 +202,11 @@ class Run:
         self.explorer.load_state_dict(ckpt["explorer"])
         self.counters.update(ckpt["counters"])
         store.open_sinks(self._sinks(store.info()["repo_id"]), ckpt["sinks"])
+        if self.explorer.starts is not None:  # the scenes committed movements left, as the sidecar recorded them
+            names = self.task.object_names
+            for row in read_attempts(self.out):
+                if row.get("feasible") and row.get("final_poses"):
+                    self.explorer.starts.record_end(row["attempt"], np.array([row["final_poses"][n] for n in names]))
         echo(
             f"resuming {self.out} at generation {self.counters['generations']} "
             f"({self.counters['attempts']} attempts, {self.counters['executed']} episodes)"
@@ -287,6 +292,7 @@ class Run:
             t = time.perf_counter()
             rollouts = self.evaluator.collect()
             waited = time.perf_counter() - t
+            self._record_ends(candidates, rollouts)
             codes, describe_s = self._describe(rollouts)
             evaluations = self.explorer.tell(candidates, codes)
             clones = self.explorer.last_clones
@@ -304,6 +310,14 @@ class Run:
                 if commit and not last:
                     self.store.commit(self.explorer.state_dict(), self.counters)
             self._show(bar)
+
+    def _record_ends(self, candidates: list, rollouts: list) -> None:
+        """The scenes executed movements left, which later starts may begin from (`StartSampler.made`)."""
+        starts = self.explorer.starts
+        if starts is not None:
+            for cand, rollout in zip(candidates, rollouts, strict=True):
+                if rollout.feasible:
+                    starts.record_end(cand.index, np.array(recorded_poses(rollout.final_poses)))
 
     def _write_prepared(self, unwritten: deque, bar, wait: bool) -> None:
         """Write the attempts at the front of ``unwritten`` whose episodes are prepared (``wait``: all of them)."""

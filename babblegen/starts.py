@@ -25,37 +25,56 @@ _MAX_TRIES = 10_000
 
 @dataclass
 class Start:
-    """A drawn start: ``layout`` is (n_objects, 3) x, y (metres) and yaw (radians); ``drawn_at`` the attempt index
-    it was drawn for; ``origin`` how: "drawn" whole (`StartSampler.draw` rebuilds it from the index and the run
-    seed) or "moved", one object of a parent's start moved (`StartSampler.move_one`)."""
+    """A start: ``layout`` is (n_objects, 3) x, y (metres) and yaw (radians); ``drawn_at`` the attempt index it was
+    drawn for; ``origin`` how: "drawn" whole (`StartSampler.draw` rebuilds it from the index and the run seed),
+    "moved", one object of a parent's start moved (`StartSampler.move_one`), or "made", the scene an earlier
+    attempt's movement left (`StartSampler.made`): then ``poses`` holds every object's whole pose (n_objects, 7:
+    x, y, z, qw, qx, qy, qz; a toppled can stays toppled) and ``made_from`` that attempt's index."""
 
     layout: np.ndarray
     drawn_at: int
     origin: str = "drawn"
+    poses: np.ndarray | None = None
+    made_from: int | None = None
 
     def key(self) -> bytes:
-        """What identifies the start in a genome's identity: the exact layout."""
+        """What identifies the start in a genome's identity: the exact layout, or the exact poses of a made one."""
+        if self.poses is not None:
+            return b"made" + np.ascontiguousarray(self.poses, dtype=np.float64).tobytes()
         return np.ascontiguousarray(self.layout, dtype=np.float64).tobytes()
 
+    @property
+    def placement(self) -> np.ndarray:
+        """What the world places: the poses of a made start, else the layout (`World.reset`)."""
+        return self.layout if self.poses is None else self.poses
+
     def to_dict(self) -> dict:
-        return {"layout": np.asarray(self.layout).tolist(), "drawn_at": int(self.drawn_at), "origin": self.origin}
+        out = {"layout": np.asarray(self.layout).tolist(), "drawn_at": int(self.drawn_at), "origin": self.origin}
+        if self.poses is not None:
+            out.update(poses=np.asarray(self.poses).tolist(), made_from=int(self.made_from))
+        return out
 
     @classmethod
     def from_dict(cls, data: dict | None) -> Start | None:
         if data is None:
             return None
         layout = np.asarray(data["layout"], dtype=np.float64).reshape(-1, 3)
-        return cls(layout, int(data["drawn_at"]), data.get("origin", "drawn"))
+        poses = data.get("poses")
+        poses = None if poses is None else np.asarray(poses, dtype=np.float64).reshape(-1, 7)
+        return cls(layout, int(data["drawn_at"]), data.get("origin", "drawn"), poses, data.get("made_from"))
 
 
 @dataclass(frozen=True)
 class StartDraw:
-    """A proposal's start still to be drawn, for the attempt index it becomes: a whole new layout, or, given a
-    ``parent`` start, that layout with one object moved."""
+    """A proposal's start still to be drawn, for the attempt index it becomes: a whole new layout; given a
+    ``parent`` start, that layout with one object moved; given ``made_from``, the scene that attempt left."""
 
     parent: Start | None = None
+    made_from: int | None = None
 
     def resolve(self, sampler: StartSampler, attempt: int) -> Start:
+        if self.made_from is not None:
+            return sampler.made(self.made_from, attempt)
         return sampler.draw(attempt) if self.parent is None else sampler.move_one(self.parent, attempt)
 
 
@@ -67,6 +86,12 @@ def yaw_quaternion(yaw: np.ndarray) -> np.ndarray:
     half = 0.5 * np.asarray(yaw, dtype=np.float64)
     zeros = np.zeros_like(half)
     return np.stack([np.cos(half), zeros, zeros, np.sin(half)], axis=-1)
+
+
+def _yaw(q: np.ndarray) -> np.ndarray:
+    """Rotation about the vertical of (..., 4) quaternions (w, x, y, z), radians."""
+    w, x, y, z = np.moveaxis(q, -1, 0)
+    return np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
 
 
 def layout_poses(task: TaskSpec, layout: np.ndarray) -> np.ndarray:
@@ -83,6 +108,7 @@ class StartSampler:
         if task.starts is None:
             raise ValueError(f"task {task.name!r} declares no start distribution (TaskSpec.starts)")
         self.task, self.seed = task, int(seed)
+        self.ends: dict[int, np.ndarray] = {}  # attempt -> the objects' poses its movement left (`record_end`)
         self.radius = np.array([o.footprint_radius for o in task.objects])
         t = task.table
         self._table = (t.center[0] - t.half_extents[0], t.center[0] + t.half_extents[0],
@@ -101,6 +127,26 @@ class StartSampler:
         others[i] = False
         layout[i] = self._place(i, layout[others], self.radius[others], rng)
         return Start(layout, int(attempt), "moved")
+
+    def record_end(self, attempt: int, poses: np.ndarray) -> None:
+        """The objects' final poses (n_objects, 7) of an executed attempt, exactly as its sidecar row records them
+        (`babblegen.exporters.sidecar.recorded_poses`): a resumed run reads them back from there."""
+        self.ends[int(attempt)] = np.array(poses, dtype=np.float64)
+
+    def made(self, made_from: int, attempt: int) -> Start:
+        """The scene attempt ``made_from`` left, as the start of ``attempt``; a whole new layout for it when that
+        scene cannot start an episode (an object off the table top) or is unknown."""
+        poses = self.ends.get(int(made_from))
+        if poses is None or not self.on_table(poses):
+            return self.draw(attempt)
+        layout = np.column_stack([poses[:, :2], _yaw(poses[:, 3:])])
+        return Start(layout, int(attempt), "made", poses.copy(), int(made_from))
+
+    def on_table(self, poses: np.ndarray) -> bool:
+        """Every object above the table top (not fallen), its centre over the table."""
+        x0, x1, y0, y1 = self._table
+        x, y, z = poses[:, 0], poses[:, 1], poses[:, 2]
+        return bool(np.all((x > x0) & (x < x1) & (y > y0) & (y < y1) & (z > self.task.table_top)))
 
     def layout(self, rng: np.random.Generator) -> np.ndarray:
         """Objects placed in turn, each redrawn until it keeps its distances (`StartDistribution`)."""

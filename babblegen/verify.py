@@ -97,10 +97,12 @@ def verify(root: Path, episodes: int, echo=print) -> int:
 
 
 def command_of(row: dict) -> Command:
-    """The command an attempt ran, rebuilt from its sidecar row: its genome, and its varied start's layout."""
-    layout = (row.get("start") or {}).get("layout")
+    """The command an attempt ran, rebuilt from its sidecar row: its genome, and its varied start's layout (the
+    poses of a made start)."""
+    start = row.get("start") or {}
+    placement = start.get("poses", start.get("layout"))  # a made start's poses, else a drawn layout
     return Command(
-        row["kind"], np.asarray(row["genome"], dtype=np.float64), None if layout is None else np.asarray(layout)
+        row["kind"], np.asarray(row["genome"], dtype=np.float64), None if placement is None else np.asarray(placement)
     )
 
 

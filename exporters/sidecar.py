@@ -136,28 +136,37 @@ def attempt_row(
             n_frames=len(rollout.frames),
             touched={n: bool(t) for n, t in zip(names, rollout.touched, strict=True)},
             contact_frames={n: int(c) for n, c in zip(names, contact_frames, strict=True)},
-            start_poses={n: np.round(p, 6).tolist() for n, p in zip(names, rollout.start_poses, strict=True)},
+            start_poses=dict(zip(names, recorded_poses(rollout.start_poses), strict=True)),
             displacement={n: round(float(d), 6) for n, d in zip(names, rollout.displacement, strict=True)},
-            final_poses={n: np.round(p, 6).tolist() for n, p in zip(names, rollout.final_poses, strict=True)},
+            final_poses=dict(zip(names, recorded_poses(rollout.final_poses), strict=True)),
             final_ee_pos=_final_tool_point(rollout),
         )
     return row
 
 
+def recorded_poses(poses: np.ndarray) -> list[list[float]]:
+    """Object poses (n_objects, 7) as a row records them: rounded to 6 decimals in their own precision."""
+    return np.round(np.asarray(poses), 6).tolist()
+
+
 def start_entry(item: Any) -> dict[str, Any]:
     """Where an attempt (or clone) started: ``{"source": "task"}`` (the task's fixed scene), or a varied start:
     ``"drawn"`` whole for this attempt, ``"moved"`` (its parent's start with one object placed anew, for this
-    attempt) or ``"inherited"`` from its parent, with the attempt index it was drawn for (``drawn_at``) and its
-    layout (x, y, yaw per object, before settling)."""
+    attempt), ``"made"`` (the scene attempt ``made_from`` left, every object's pose in ``poses``) or
+    ``"inherited"`` from its parent, with the attempt index it was drawn for (``drawn_at``) and its layout (x, y,
+    yaw per object, before settling)."""
     start = item.start
     if start is None:
         return {"source": "task"}
     drawn = start.drawn_at == getattr(item, "index", None)
-    return {
+    entry = {
         "source": start.origin if drawn else "inherited",
         "drawn_at": start.drawn_at,
         "layout": np.asarray(start.layout).tolist(),
     }
+    if start.poses is not None:  # a scene an earlier movement made: where it came from, and every object's pose
+        entry.update(made_from=start.made_from, poses=np.asarray(start.poses).tolist())
+    return entry
 
 
 def _final_tool_point(rollout: Any) -> list[float]:

@@ -198,6 +198,32 @@ def test_varied_starts_killed_then_resumed_write_the_same_dataset(one_worker_var
     assert read_run_info(out)["config"]["world"]["starts"] == "varied"
 
 
+# children that start from the scene their parent's movement left, and children drawn independently of the parents
+MADE = [*VARIED, "--start-from-end", "0.5", "--independent-share", "0.25"]
+
+
+@pytest.fixture(scope="module")
+def one_worker_made(tmp_path_factory):
+    out = tmp_path_factory.mktemp("par") / "one-made"
+    assert main(["generate", "--out", str(out), "--seed", "2", "--workers", "1", *MADE]) == 0
+    rows = [r for r in read_attempts(out) if r["feasible"]]
+    assert "made" in {r["start"]["source"] for r in rows}
+    assert any(r["parent"] is None and r["generation"] > 0 for r in rows), "independent children"
+    return out
+
+
+def test_made_starts_are_the_same_with_four_workers_after_kill_9_and_when_verified(one_worker_made, tmp_path):
+    """A made start is the scene an earlier attempt left, as its sidecar row records it: the same with 4 worker
+    processes, after kill -9 and --resume (which reads those scenes back from the sidecar), and re-simulated."""
+    four = tmp_path / "four-made"
+    assert main(["generate", "--out", str(four), "--seed", "2", "--workers", "4", *MADE]) == 0
+    assert_same_dataset(one_worker_made, four)
+    killed = tmp_path / "killed-made"
+    kill_then_resume(killed, MADE)
+    assert_same_dataset(one_worker_made, killed)
+    assert main(["verify", str(one_worker_made), "--episodes", "0"]) == 0
+
+
 def test_ray_auto_starts_a_local_cluster_and_writes_the_same_dataset(one_worker, tmp_path):
     ray = pytest.importorskip("ray")
     assert not ray.is_initialized()

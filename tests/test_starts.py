@@ -298,3 +298,50 @@ def test_resume_refuses_other_starts_and_runs_stored_before_resume_fixed():
     del data["world"]["starts"]
     data["descriptor"] = "phash16"
     assert resumed_config(data).world.starts == "fixed"
+
+
+def end_scene(start: Start, attempt: int) -> np.ndarray:
+    """A stand-in world's end scene: every object of the start pushed 1 cm along x per attempt index's parity."""
+    poses = layout_poses(get_task("noveb_tabletop"), start.layout)
+    poses[:, 0] += 0.01 * (1 + attempt % 2)
+    return poses
+
+
+def test_a_start_made_by_a_parent_s_movement_is_the_scene_it_left():
+    """With start_from_end, start mutations begin from the scene the parent's movement left (recorded by the run
+    loop, `record_end`), whole poses and all; an unknown scene, or one with an object off the table top, gives a
+    new layout instead."""
+    task = get_task("noveb_tabletop")
+    sampler = StartSampler(task, 4)
+    config = {"children": 24, "start_mutation_prob": 1.0, "start_from_end": 1.0}
+    ex = make_explorer("noveb", config, 4, LIMITS, START, starts=sampler)
+    asked = []
+    for _ in range(5):
+        cands = ex.ask()
+        asked += cands
+        for c in cands:
+            sampler.record_end(c.index, end_scene(c.start, c.index))
+        ex.tell(cands, [code_of(c.genome, c.start) for c in cands])
+    made = [c for c in asked if c.start.origin == "made"]
+    assert made and all(c.start.made_from == c.parent and c.start.drawn_at == c.index for c in made)
+    for c in made:
+        np.testing.assert_array_equal(c.start.poses, sampler.ends[c.parent])
+        np.testing.assert_array_equal(c.start.placement, c.start.poses)
+    again = Start.from_dict(made[0].start.to_dict())
+    assert again.key() == made[0].start.key() and again.made_from == made[0].start.made_from
+    assert genome_key("k", made[0].genome, made[0].start) != genome_key("k", made[0].genome, sampler.draw(0))
+    # a scene with an object fallen off the table, or none recorded: a whole new layout for the attempt
+    fallen = sampler.ends[made[0].parent].copy()
+    fallen[1, 2] = 0.05
+    sampler.record_end(10_000, fallen)
+    for source in (10_000, 20_000):
+        start = sampler.made(source, 77)
+        assert start.origin == "drawn" and np.array_equal(start.layout, sampler.draw(77).layout)
+    # 0 breeds exactly as before
+    plain = make_explorer("noveb", {"children": 24}, 4, LIMITS, START, starts=StartSampler(task, 4))
+    zero = make_explorer(
+        "noveb", {"children": 24, "start_from_end": 0.0}, 4, LIMITS, START, starts=StartSampler(task, 4)
+    )
+    assert [c.start.to_dict() for c in run_generations(plain, 4)] == [
+        c.start.to_dict() for c in run_generations(zero, 4)
+    ]

@@ -16,7 +16,8 @@ default fewer waypoints first: parsimony pressure against genomes that grow with
 
 With varied starts (`babblegen.starts`) each candidate also carries the start it runs from: the first generation
 draws one per attempt; a child keeps its parent's, unless its genome is new and a start mutation
-(``start_mutation_prob``) draws it another; a clone is the same genome from the same start.
+(``start_mutation_prob``) draws it another (with ``start_from_end``, the scene its parent's movement left); a clone is
+the same genome from the same start.
 
 Infeasible candidates (no IK solution or no collision-free plan: descriptor ``None``) have no behaviour, so
 they get no novelty, are never archived and never survive selection; they still consume an attempt index.
@@ -99,6 +100,10 @@ class NovEBConfig:
     start_mutation_prob: float = 0.5
     start_mutation_of: str = "new_genomes"
     start_mutation: str = "new_layout"
+    # the share of start mutations that start from the scene the parent's own movement left instead (Go-Explore's
+    # return to a found state: pushed, toppled and touching objects that placement rarely makes); a scene with an
+    # object off the table top is not used (a new layout is drawn). 0: never, as before
+    start_from_end: float = 0.0
     # the share of each generation's children drawn independently of the parents instead, as `random_waypoints`
     # draws (1 to 4 waypoints uniform in the workspace box; with varied starts, from a new start): the random
     # emitter of quality-diversity libraries (0: every child is bred, the paper)
@@ -116,7 +121,7 @@ class NovEBConfig:
         if int(self.k) != self.k or self.k < 1:
             raise ValueError(f"k must be an integer >= 1, got {self.k}")
         probabilities = ("mutation_prob", "extend_prob", "remove_prob", "crossover_prob", "start_mutation_prob")
-        for name in (*probabilities, "independent_share"):
+        for name in (*probabilities, "independent_share", "start_from_end"):
             p = getattr(self, name)
             if not 0.0 <= p <= 1.0:
                 raise ValueError(f"{name} must be a probability in [0, 1], got {p}")
@@ -156,6 +161,7 @@ def upgrade_stored_config(config: dict[str, Any]) -> dict[str, Any]:
     config.setdefault("remove_above", 1)  # stored before the setting: any genome of 2 or more could lose one
     config.setdefault("reach_redraws", 0)  # stored before the setting: a waypoint out of reach was run as drawn
     config.setdefault("independent_share", 0.0)  # stored before the setting: every child was bred
+    config.setdefault("start_from_end", 0.0)  # ... and started from a placed layout
     if "keep_fraction" in config:
         kept = float(config.pop("keep_fraction"))
         config.setdefault("children", int(round(int(config.get("population", 12)) * (1.0 / kept - 1.0))))
@@ -263,7 +269,9 @@ class NovEB(ArchiveExplorer):
                 g = remove_waypoint(g, self.rng)
             start = self._parent_starts[p]
             may_move = cfg.start_mutation_of == "all_children" or not np.array_equal(g, self._parents[p])
-            if varied and may_move and draws[i, 3] < cfg.start_mutation_prob:
+            if varied and may_move and draws[i, 3] < cfg.start_mutation_prob * cfg.start_from_end:
+                start = StartDraw(made_from=int(self._parent_index[p]))
+            elif varied and may_move and draws[i, 3] < cfg.start_mutation_prob:
                 start = StartDraw(start if cfg.start_mutation == "move_one" else None)
             children.append((np.array(g, dtype=np.float64), int(self._parent_index[p]), start))
         if cfg.independent_share > 0:  # drawn after the bred children, so that a share of 0 draws as before

@@ -26,7 +26,9 @@ class Command:
 
     kind: str  # "ee_waypoints" or "joint_target"
     values: np.ndarray  # (n, 3) or (dof,)
-    start: np.ndarray | None = None  # (n_objects, 3) x, y, yaw of a varied start (babblegen.starts); None: the task's
+    # a varied start (babblegen.starts): (n_objects, 3) x, y, yaw, or (n_objects, 7) whole poses of a made start;
+    # None: the task's
+    start: np.ndarray | None = None
 
 
 @dataclass

@@ -208,8 +208,8 @@ class World:
 
     def reset(self, start: np.ndarray | None = None) -> None:
         """Robot at home, every object at its start pose (the task's, or the varied start ``start``: (n_objects,
-        3) x, y, yaw, resting on the table, not settled yet: `settle_start`), with no physical memory of earlier
-        rollouts: the scene is rebuilt.
+        3) x, y, yaw, resting on the table, or (n_objects, 7) whole poses of a scene an earlier movement made; not
+        settled yet: `settle_start`), with no physical memory of earlier rollouts: the scene is rebuilt.
 
         Setting poses and velocities is not enough. PhysX keeps state that no API shows (contact pair order,
         friction anchors, broadphase structures), so after other contact-rich rollouts the same command could
@@ -221,7 +221,9 @@ class World:
         self.env.reset(options={"reconfigure": True})
         self._bind_scene()
         if start is not None:
-            for entity, pose in zip(self._object_entities, layout_poses(self.task, start), strict=True):
+            start = np.asarray(start, dtype=np.float64)
+            poses = start if start.shape[1] == 7 else layout_poses(self.task, start)  # a made start's whole poses
+            for entity, pose in zip(self._object_entities, poses, strict=True):
                 entity.set_pose(sapien.Pose(pose[:3], pose[3:]))
 
     def settle_start(self) -> str:

@@ -74,7 +74,13 @@ def register(sub) -> None:
     )
     p.add_argument("--plan-goals", type=int, default=40, help="planning goals; 0: no planning [default: 40]")
     p.add_argument("--plan-candidates", type=int, default=16, help="candidate movements per goal [default: 16]")
-    p.add_argument("--steps", type=int, default=None, help="gradient steps per model [default: 4000]")
+    p.add_argument(
+        "--steps",
+        type=int,
+        default=None,
+        help="at most this many gradient steps per model, stopped early on its own validation episodes "
+        "[default: 12000]",
+    )
     p.add_argument("--seed", type=int, default=0, help="repeat r trains with seed SEED + r [default: 0]")
     p.add_argument("--workers", type=int, default=None, help="processes [default: one per core]")
     p.add_argument("--out", type=Path, default=Path("evaluation"), help="output folder [default: evaluation]")

@@ -162,8 +162,14 @@ class Dataset:
 
 def layout_key(row: dict) -> str:
     """A start's identity: the drawn layout, or the task's fixed scene."""
-    layout = (row.get("start") or {}).get("layout")
+    layout = _placement(row)
     return "task" if layout is None else hashlib.blake2b(np.asarray(layout, dtype=np.float64).tobytes()).hexdigest()
+
+
+def _placement(row: dict) -> list | None:
+    """What the world placed to start an attempt: a made start's poses, a drawn layout, or None (the task's)."""
+    start = row.get("start") or {}
+    return start.get("poses", start.get("layout"))
 
 
 def identity_key(row: dict) -> str:
@@ -215,9 +221,7 @@ def read_dataset(root: Path) -> Dataset:
         explorer=np.array([str(r.get("explorer", run["config"]["explorer"])) for r in executed]),
         identity=np.array([identity_key(r) for r in executed]),
         layout=np.array([layout_key(r) for r in executed]),
-        commands=[
-            {"kind": r["kind"], "genome": r["genome"], "layout": (r.get("start") or {}).get("layout")} for r in executed
-        ],
+        commands=[{"kind": r["kind"], "genome": r["genome"], "layout": _placement(r)} for r in executed],
         actions=[action[r] for r in rows_of],
         states=[state[r] for r in rows_of],
         poses=[poses[r] for r in rows_of],

@@ -81,7 +81,7 @@ def _fit_and_score(job: tuple[str, int, EpisodeSet, TrainSettings]) -> dict:
     tests, plan = _shared["tests"], _shared["plan"]
     model = WorldModel.fit(train, settings)
     mean = mean_displacement(train)
-    out = {"source": name, "repeat": repeat, "episodes": len(train)}
+    out = {"source": name, "repeat": repeat, "episodes": len(train), "steps": model.trained_steps}
     out["scores"] = {t: score(model.predict(e), e, mean) for t, e in tests.items()}
     if plan is not None:
         out["planning"] = plan_scores(model, plan, _shared["plan_settings"].success_cm)

@@ -26,12 +26,20 @@ import numpy as np
 import torch
 from torch import nn
 
-from babblegen.worldmodel.episodes import EpisodeSet, Scene, yaw_of
+from babblegen.worldmodel.episodes import MOVED, EpisodeSet, Scene, yaw_of
 
 NEAREST = 8  # arm spheres per object and frame the network sees (the nearest to it over the frame's motion)
 POS, VEL = 10.0, 100.0  # positions in decimetres, motions per frame in centimetres: inputs near unit scale
 BUSY_GAP = 0.1  # metres: the arm passes nearer than this to an object, a row worth learning from
 QUIET = 8  # training keeps one in this many rows where nothing is near or moving, weighted by this
+GATES = (
+    -2.0,
+    -1.5,
+    -1.0,
+    -0.5,
+    0.0,
+    0.5,
+)  # the "moves" thresholds (logits) a model chooses among on its validation episodes
 MOVING = 0.001  # metres (or radians / 10) in one frame: the object moves in that frame
 
 
@@ -135,12 +143,10 @@ def features(
     near = np.argsort(gap, axis=-1, kind="stable")[..., :NEAREST]  # (N, K, M)
     r0 = np.take_along_axis(rel0, near[..., None], axis=2)
     r1 = np.take_along_axis(rel1, near[..., None], axis=2)
-    arm = (
-        np.concatenate(
-            [to_frame(r0[..., :2]), r0[..., 2:], to_frame(r1[..., :2]), r1[..., 2:], radii[near][..., None]], axis=-1
-        ).reshape(n, k, -1)
-        * POS
-    )
+    closest = r0 + np.take_along_axis(along, near, axis=2)[..., None] * (r1 - r0)  # where it passes nearest
+    parts = [to_frame(r0[..., :2]), r0[..., 2:], to_frame(r1[..., :2]), r1[..., 2:], radii[near][..., None]]
+    parts += [to_frame(closest[..., :2]), closest[..., 2:], np.take_along_axis(gap, near, axis=2)[..., None]]
+    arm = np.concatenate(parts, axis=-1).reshape(n, k, -1) * POS
     # the object itself: its last motion, its height over resting, the table's edges
     rest = scene.top + scene.half_heights
     motion = now - before
@@ -218,11 +224,52 @@ class StepNet(nn.Module):
 
 @dataclass
 class TrainSettings:
-    steps: int = 4000  # gradient steps, whatever the data's size: every source's model gets the same training
+    """How a model trains: Adam steps on batches of rows, at most ``steps``, with early stopping: every ``check``
+    steps the one-step loss on ``validation`` of the training episodes (held back from training) is measured, and
+    the best weights are kept; training stops after ``patience`` checks without a better one. Every source's model
+    thus trains as long as its own data supports."""
+
+    steps: int = 12000
+    check: int = 500
+    patience: int = 4
+    validation: float = 0.1
     batch: int = 512
     hidden: int = 256
     lr: float = 2e-3
     seed: int = 0
+
+
+def training_rows(episodes: EpisodeSet, rng: np.random.Generator) -> tuple[np.ndarray, ...]:
+    """The step network's rows (inputs, targets, moving, weight) of every frame of every episode, with the true arm
+    and object states."""
+    scene = episodes.scene
+    spheres = ArmSpheres(scene.robot)
+    xs, ys, ms, ws = [], [], [], []
+    for q, poses in zip(episodes.states, episodes.poses, strict=True):
+        state = object_state(poses)
+        before = np.concatenate([state[:1], state[:-2]])
+        balls = spheres(q)
+        x, gap = features(scene, spheres.radii, state[:-1], before, balls[:-1], balls[1:])
+        y, m = targets(scene, state[:-1], state[1:])
+        _, was = targets(scene, before, state[:-1])
+        # quiet rows (nothing near or moving, before or now) teach little but "stays": keep one in QUIET
+        busy = (gap < BUSY_GAP) | m | was | (m | was).any(axis=1, keepdims=True)
+        keep = busy | (rng.random(busy.shape) < 1 / QUIET)
+        xs.append(x[keep])
+        ys.append(y[keep])
+        ms.append(m[keep])
+        ws.append(np.where(busy[keep], 1.0, QUIET))
+    return np.concatenate(xs), np.concatenate(ys), np.concatenate(ms).astype(np.float32), np.concatenate(ws)
+
+
+def step_loss(net: StepNet, x: torch.Tensor, y: torch.Tensor, m: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
+    """Weighted "moves" cross-entropy, plus the motion's smooth L1 error on the rows that move."""
+    logit, motion = net(x)
+    loss = nn.functional.binary_cross_entropy_with_logits(logit, m, weight=w / w.mean())
+    moving = m > 0
+    if moving.any():
+        loss = loss + nn.functional.smooth_l1_loss(motion[moving], y[moving])
+    return loss
 
 
 class WorldModel:
@@ -231,55 +278,78 @@ class WorldModel:
     def __init__(self, scene: Scene, arm: ArmFilter, net: StepNet, mean: np.ndarray, std: np.ndarray):
         self.scene, self.arm, self.net, self.mean, self.std = scene, arm, net, mean, std
         self.spheres = ArmSpheres(scene.robot)
+        self.trained_steps = 0
+        self.gate = 0.0  # a frame's motion is applied where the "moves" logit exceeds this
 
     @classmethod
     def fit(cls, episodes: EpisodeSet, settings: TrainSettings | None = None) -> WorldModel:
         s = settings or TrainSettings()
-        scene = episodes.scene
         torch.manual_seed(s.seed)
         rng = np.random.default_rng(s.seed)
-        arm = ArmFilter.fit(episodes.actions, episodes.states)
-        spheres = ArmSpheres(scene.robot)
-        xs, ys, ms, ws = [], [], [], []
-        for q, poses in zip(episodes.states, episodes.poses, strict=True):
-            state = object_state(poses)
-            before = np.concatenate([state[:1], state[:-2]])
-            balls = spheres(q)
-            x, gap = features(scene, spheres.radii, state[:-1], before, balls[:-1], balls[1:])
-            y, m = targets(scene, state[:-1], state[1:])
-            _, was = targets(scene, before, state[:-1])
-            # quiet rows (nothing near or moving, before or now) teach little but "stays": keep one in QUIET
-            busy = (gap < BUSY_GAP) | m | was | (m | was).any(axis=1, keepdims=True)
-            keep = busy | (rng.random(busy.shape) < 1 / QUIET)
-            xs.append(x[keep])
-            ys.append(y[keep])
-            ms.append(m[keep])
-            ws.append(np.where(busy[keep], 1.0, QUIET))
-        x, y, m, w = np.concatenate(xs), np.concatenate(ys), np.concatenate(ms), np.concatenate(ws)
+        order = rng.permutation(len(episodes))
+        n_val = int(len(episodes) * s.validation) if len(episodes) >= 10 else 0
+        train, val = episodes.take(np.sort(order[n_val:])), episodes.take(np.sort(order[:n_val]))
+        arm = ArmFilter.fit(train.actions, train.states)
+        x, y, m, w = training_rows(train, rng)
         mean, std = x.mean(axis=0), x.std(axis=0) + 1e-3
+
+        def tensors(rows: tuple[np.ndarray, ...]) -> list[torch.Tensor]:
+            xr, *rest = rows
+            return [torch.from_numpy(((xr - mean) / std).astype(np.float32))] + [torch.from_numpy(r) for r in rest]
+
+        xt, yt, mt, wt = tensors((x, y, m, w.astype(np.float32)))
+        checks = tensors(tuple(r.astype(np.float32) for r in training_rows(val, rng))) if n_val else None
         net = StepNet(x.shape[1], s.hidden)
         opt = torch.optim.AdamW(net.parameters(), lr=s.lr, weight_decay=1e-4)
-        xt = torch.from_numpy((x - mean) / std)
-        yt, mt = torch.from_numpy(y), torch.from_numpy(m.astype(np.float32))
-        wt = torch.from_numpy(w.astype(np.float32))
         sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=s.lr, total_steps=s.steps)
-        order = torch.zeros(0, dtype=torch.int64)
-        for step in range(s.steps):
-            at = (step * s.batch) % max(len(x) - len(x) % s.batch, s.batch)
+        best, best_state, since, batches = np.inf, None, 0, torch.zeros(0, dtype=torch.int64)
+        per_epoch = max(len(x) - len(x) % s.batch, s.batch)
+        step = 0
+        for step in range(1, s.steps + 1):
+            at = ((step - 1) * s.batch) % per_epoch
             if at == 0:
-                order = torch.from_numpy(rng.permutation(len(x)))
-            idx = order[at : at + s.batch]
-            logit, motion = net(xt[idx])
-            weight = wt[idx] / wt[idx].mean()
-            loss = nn.functional.binary_cross_entropy_with_logits(logit, mt[idx], weight=weight)
-            moving = mt[idx] > 0
-            if moving.any():
-                loss = loss + nn.functional.smooth_l1_loss(motion[moving], yt[idx][moving])
+                batches = torch.from_numpy(rng.permutation(len(x)))
+            idx = batches[at : at + s.batch]
+            loss = step_loss(net, xt[idx], yt[idx], mt[idx], wt[idx])
             opt.zero_grad()
             loss.backward()
             opt.step()
             sched.step()
-        return cls(scene, arm, net.eval(), mean, std)
+            if checks is not None and step % s.check == 0:
+                with torch.no_grad():
+                    value = float(step_loss(net, *checks))
+                if value < best:
+                    best, since = value, 0
+                    best_state = {k: v.clone() for k, v in net.state_dict().items()}
+                    best_step = step
+                else:
+                    since += 1
+                    if since >= s.patience:
+                        break
+        model = cls(episodes.scene, arm, net, mean, std)
+        if best_state is not None:
+            net.load_state_dict(best_state)
+            model.trained_steps = best_step
+        else:
+            model.trained_steps = step
+        net.eval()
+        if n_val:
+            model.gate = model.best_gate(val)
+        return model
+
+    def best_gate(self, episodes: EpisodeSet) -> float:
+        """The "moves" threshold (a logit, among `GATES`) whose rollouts best tell which objects move (F1, the
+        displacement over `MOVED`) on ``episodes``: each model's own trade between missed and false moves."""
+        first = object_state(episodes.first)
+        truth = np.linalg.norm(episodes.final[..., :3] - episodes.first[..., :3], axis=-1) > MOVED
+        best, best_f1 = 0.0, -1.0
+        for gate in GATES:
+            self.gate = gate
+            moved = np.linalg.norm(self.predict(episodes)[..., :3] - first[..., :3], axis=-1) > MOVED
+            f1 = 2 * (moved & truth).sum() / max(moved.sum() + truth.sum(), 1)
+            if f1 > best_f1:
+                best, best_f1 = gate, f1
+        return best
 
     def predict(self, episodes: EpisodeSet) -> np.ndarray:
         """(E, K, 4) every object's x, y, z, yaw in each episode's last frame, predicted from its first frame's
@@ -309,7 +379,7 @@ class WorldModel:
                     self.scene, self.spheres.radii, now[live], before[live], balls[live, t], balls[live, t + 1]
                 )
                 logit, motion = self.net(torch.from_numpy((x.reshape(-1, x.shape[-1]) - self.mean) / self.std))
-                motion = motion.numpy().reshape(len(live), k, 4) * (logit.numpy() > 0).reshape(len(live), k, 1)
+                motion = motion.numpy().reshape(len(live), k, 4) * (logit.numpy() > self.gate).reshape(len(live), k, 1)
                 before[live] = now[live]
                 now[live] = apply(self.scene, now[live], motion)
                 ended = live[lengths[live] - 2 == t]
