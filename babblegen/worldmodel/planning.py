@@ -7,8 +7,9 @@ genomes (1 to 4 waypoints in the workspace box, as `random_waypoints` draws them
 in the simulator (seeded like any attempt, so the goal's own genome reproduces the goal) and its outcome kept, so
 that many models are scored against the same executions:
 
-- **model**: the candidate whose predicted end position of the goal object is nearest the goal is chosen; a success
-  when that candidate's true end position lies within ``success_cm`` of the goal;
+- **model**: the candidate whose predicted end position of the goal object is nearest the goal is chosen (among
+  candidates predicted equally near, one at random: counted as their mean success); a success when that candidate's
+  true end position lies within ``success_cm`` of the goal;
 - **oracle**: a success when any candidate's does (the best of the same K, executed);
 - **random**: the share of the feasible candidates that succeed (a candidate chosen at random);
 - **share**: model / oracle.
@@ -192,7 +193,9 @@ def plan_scores(model: WorldModel, task: PlanningTask, success_cm: float) -> dic
             [task.first[g]] * len(live), [task.actions[g][j] for j in live], [task.joints0[g]] * len(live)
         )
         miss = np.linalg.norm(pred[:, task.goal_object[g], :2] - task.goal_xy[g], axis=-1)
-        picks.append(bool(success[g, live[int(np.argmin(miss))]]))
+        # candidates predicted equally near (none predicted to move, say): one of them at random, as expected value
+        tied = live[np.isclose(miss, miss.min(), rtol=0.0, atol=1e-9)]
+        picks.append(float(success[g, tied].mean()))
     oracle = float(success.any(axis=1).mean())
     rate = float(np.mean(picks))
     random_rate = float(np.mean([success[g, task.feasible[g]].mean() if task.feasible[g].any() else 0.0
