@@ -143,3 +143,46 @@ def test_take_and_union_keep_episodes_together():
     assert len(both) == 3 and len(both.poses) == 3 and len(both.commands) == 3
     picked = both.take(np.array([2, 0]))
     assert picked.attempt.tolist() == [0, 0] and len(picked.actions) == 2
+
+
+class StillModel:
+    """Predicts that nothing moves."""
+
+    def rollout(self, first, actions, joints0):
+        return np.stack(first)
+
+
+class Oracle(StillModel):
+    """Predicts each candidate's true end (the candidates' actions carry their index)."""
+
+    def __init__(self, task):
+        self.task = task
+
+    def rollout(self, first, actions, joints0):
+        out = np.stack(first).copy()
+        for i, a in enumerate(actions):
+            g, c = int(a[0, 0]), int(a[0, 1])
+            out[i, self.task.goal_object[g], :2] = self.task.final_xy[g, c]
+        return out
+
+
+def test_planning_scores_by_hand():
+    """Two goals of four candidates: goal 0 is reached by candidates 0 and 2, goal 1 by candidate 0 alone, and
+    candidate 3 of goal 1 is infeasible. A model that predicts nothing moves chooses at random among all (as
+    expected success: 2/4 and 1/3); the oracle-like model always succeeds."""
+    from babblegen.worldmodel.planning import PlanningTask, plan_scores
+
+    first = object_state(np.array([REST, REST]))
+    final = np.array(
+        [[[0.9, 0.2], [0.5, 0.5], [0.91, 0.2], [0.6, 0.6]], [[0.7, 0.0], [0.7, -0.1], [0.2, 0.2], [np.nan] * 2]]
+    )
+    feasible = ~np.isnan(final[..., 0])
+    actions = [[np.array([[g, c, 0, 0, 0, 0, 0]] * 3, dtype=float) for c in range(4)] for g in range(2)]
+    task = PlanningTask(
+        np.array([0, 1]), np.array([[0.9, 0.2], [0.7, 0.0]]), first, np.zeros((2, 7)), feasible, actions, final
+    )
+    still = plan_scores(StillModel(), task, success_cm=3.0)
+    assert still["oracle"] == 1.0
+    assert still["random"] == pytest.approx((2 / 4 + 1 / 3) / 2)
+    assert still["model"] == pytest.approx(still["random"])
+    assert plan_scores(Oracle(task), task, success_cm=3.0)["model"] == 1.0
