@@ -139,18 +139,23 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     if train.steps < 1:
         raise EvaluationError(f"--steps must be at least 1, got {train.steps}")
     modes = ["attempts", "episodes"] if args.equal == "both" else [args.equal]
-    result = run_experiment(
-        sources, tests, args.attempts or [None], modes, train, plan, plan_settings, workers, echo=print
-    )
-    result["settings"] = {
+    settings = {
         "train": {name: [str(d) for d in dirs] for name, dirs in args.train},
         "test": {name: [str(d) for d in dirs] for name, dirs in args.test},
         "model": asdict(train),
         "planning": {**asdict(plan_settings), "test": plan_test},
         "command": " ".join(sys.argv),
     }
-    if plan is not None:
-        result["planning"]["test"] = plan_test
-    written = write(result, args.out)
+
+    def finish(result: dict) -> list[Path]:
+        result["settings"] = settings
+        if plan is not None:
+            result["planning"]["test"] = plan_test
+        return write(result, args.out)
+
+    result = run_experiment(
+        sources, tests, args.attempts or [None], modes, train, plan, plan_settings, workers, echo=print, progress=finish
+    )
+    written = finish(result)
     print(f"done in {time.perf_counter() - started:.0f} s: " + ", ".join(str(p) for p in written))
     return 0

@@ -103,8 +103,11 @@ def run_experiment(
     plan_settings: PlanningSettings,
     workers: int,
     echo=print,
+    progress=None,
 ) -> dict:
-    """Every (budget, equal mode): per source, the episodes trained on and the scores of each repeat."""
+    """Every (budget, equal mode): per source, the episodes trained on and the scores of each repeat;
+    ``progress``, if given, is called with the result so far after each model (a long evaluation keeps what it
+    measured)."""
     blocks, jobs = [], []
     for attempts in attempt_budgets:
         for equal in equal_modes:
@@ -115,16 +118,6 @@ def run_experiment(
                     settings = TrainSettings(**{**asdict(train), "seed": train.seed + r})
                     jobs.append((len(blocks), (name, r, held_out(episodes, tests), settings)))
             blocks.append(block)
-    echo(f"training {len(jobs)} models on {workers} worker(s)")
-    context = get_context("spawn")
-    with ProcessPoolExecutor(
-        workers, mp_context=context, initializer=_init, initargs=(tests, plan, plan_settings)
-    ) as pool:
-        futures = [(b, pool.submit(_fit_and_score, job)) for b, job in jobs]
-        for done, (b, future) in enumerate(futures, start=1):
-            result = future.result()
-            blocks[b]["sources"].setdefault(result["source"], []).append(result)
-            echo(f"  [{done}/{len(jobs)}] {_describe(blocks[b], result)}")
     tests_info = {}
     for name, e in tests.items():
         moved, stratum = outcomes(e)
@@ -136,6 +129,19 @@ def run_experiment(
     out = {"tests": tests_info, "nothing_moves": nothing_moves(tests), "blocks": blocks}
     if plan is not None:
         out["planning"] = {"goals": int(len(plan.goal_object)), "candidates": int(plan.feasible.shape[1])}
+    echo(f"training {len(jobs)} models on {workers} worker(s)")
+    context = get_context("spawn")
+    with ProcessPoolExecutor(
+        workers, mp_context=context, initializer=_init, initargs=(tests, plan, plan_settings)
+    ) as pool:
+        futures = [(b, pool.submit(_fit_and_score, job)) for b, job in jobs]
+        for done, (b, future) in enumerate(futures, start=1):
+            result = future.result()
+            blocks[b]["sources"].setdefault(result["source"], []).append(result)
+            echo(f"  [{done}/{len(jobs)}] {_describe(blocks[b], result)}")
+            out["models"] = {"done": done, "total": len(jobs)}
+            if progress is not None:
+                progress(out)
     return out
 
 

@@ -48,6 +48,9 @@ def block_title(block: dict) -> str:
 def markdown(result: dict) -> str:
     tests = list(result["tests"])
     lines = ["# What each dataset teaches a world model", ""]
+    models = result.get("models", {})
+    if models and models["done"] < models["total"]:
+        lines += [f"**In progress**: {models['done']} of {models['total']} models trained so far.", ""]
     lines += [
         'Per training source, mean ± std over repeats. F1: of "moves" (over 1 cm) per object and episode. Error: '
         'median error of the predicted final (x, y) of the objects that moved, as a multiple of "nothing moves" '
