@@ -101,7 +101,7 @@ def test_dataset_loads_and_agrees_with_sidecar(small_run):
         assert contacts.sum(axis=0).astype(int).tolist() == [row["contact_frames"][n] for n in names]
         final = frames[-1]["observation.environment_state"].numpy().reshape(len(names), 7)
         np.testing.assert_allclose(final, [row["final_poses"][n] for n in names], atol=1e-5)
-        # The descriptor was computed on the raw render; the video is lossy (H.264, CRF 22), which moves a
+        # The descriptor was computed on the raw render; the video is lossy (H.264, CRF 27), which moves a
         # pHash by a few bits (64-bit: 0-2 measured; 256-bit: a few more), far below two outcomes' distance.
         code = phash(to_uint8_image(frames[-1]["observation.images.head"].numpy()))
         assert hamming(code[None], codes[row["episode_index"]][None])[0, 0] <= phash.n_bits // 16
