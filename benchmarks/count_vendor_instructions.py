@@ -145,6 +145,9 @@ def count_run(sites: list[Site], generate: list[str], workdir: Path) -> tuple[li
         print(done.stdout[-3000:], done.stderr[-3000:], sep="\n", file=sys.stderr)
     placed = sum(a is not None for a in result["addresses"])
     print(f"{placed} of {len(sites)} sites were loaded and counted")
+    for line in done.stdout.splitlines():
+        if line.startswith("finished:"):
+            print(f"babblegen {line}")
     return result["counts"], result["exit_status"], seconds
 
 
