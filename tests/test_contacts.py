@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from watch import WatchedWorld
 
 from babblegen.evaluation import seeded_rollout
 from babblegen.tasks import get_task
@@ -37,27 +38,6 @@ TOPPLE = (Command("ee_waypoints", np.array([[0.3847810797564037, 0.6203558407327
 # it along +x, 1 cm above its centre: the ball rolls 42 cm and stays on the table.
 BALL_LAYOUT = np.array([[0.78, 0.22, 0.0], [0.65, 0.05, 0.0], [0.78, -0.38, 0.0], [0.86, -0.12, 0.0]])
 ROLL = ([[0.74, -0.12, 0.75], [0.92, -0.12, 0.75]], 0, 0)
-
-
-class WatchedWorld(World):
-    """A World that also records, every physics substep, the deepest contact any object has (PhysX's separation:
-    negative is penetration) and which pairs of objects touch."""
-
-    def _bind_scene(self) -> None:
-        super()._bind_scene()
-        self.deepest, self.pairs = 0.0, set()
-
-    def _touching(self) -> np.ndarray:
-        touched = super()._touching()
-        object_of = self._object_of_body
-        for contact in self.sim.scene.px.get_contacts():
-            a, b = (object_of.get(body) for body in contact.bodies)
-            if a is None and b is None:
-                continue
-            self.deepest = min([self.deepest, *(p.separation for p in contact.points)])
-            if a is not None and b is not None:
-                self.pairs.add((min(a, b), max(a, b)))
-        return touched
 
 
 @pytest.fixture(scope="module")
