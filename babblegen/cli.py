@@ -209,6 +209,13 @@ def build_parser() -> argparse.ArgumentParser:
         "'local', or an address [default: off]",
     )
     g.add_argument(
+        "--allow-mixed-machines",
+        action="store_true",
+        default=None,
+        help="let Ray nodes (or a resume) whose machine fingerprint differs from this machine's take part; run.json "
+        "records the run as mixed [default: refused, docs/reproducibility.md]",
+    )
+    g.add_argument(
         "--rerun",
         action=argparse.BooleanOptionalAction,
         default=None,
@@ -248,6 +255,7 @@ def _overrides(args: argparse.Namespace) -> dict:
         "checkpoint_every": args.checkpoint_every,
         "workers": args.workers,
         "ray": args.ray,
+        "allow_mixed_machines": args.allow_mixed_machines,
         "rerun": args.rerun,
         "rerun_frames": args.rerun_frames,
         "video_codec": args.video_codec,

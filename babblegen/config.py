@@ -39,6 +39,10 @@ class RunConfig:
     checkpoint_every: int = 10  # generations between commit points (crash-safe resume granularity)
     workers: int = field(default_factory=lambda: default_workers())  # rollout processes: one per core
     ray: str | None = None  # None, "auto" or a cluster address
+    # let machines that compute differently (their fingerprints differ: babblegen.fingerprint) write one dataset: a
+    # Ray node of another kind, or a resume on one. Off, such a node or resume is refused: what a mixed run records
+    # depends on which machine ran which movement. On, run.json records the run as mixed.
+    allow_mixed_machines: bool = False
     rerun: bool = True  # write Rerun recordings beside the dataset (DIR/babblegen/rerun/)
     # what the recordings log of each episode: "ends" (its first and last frame, every view, and the paths of the
     # movement; `babblegen view` plays any episode frame by frame from the dataset) or "all" (every frame)
@@ -127,7 +131,16 @@ class RunConfig:
             raise ConfigError(f"unknown video codec {self.video_codec!r}; choose one of: {', '.join(VIDEO_CODECS)}")
 
 
-RESUME_MAY_CHANGE = ("max_attempts", "generations", "workers", "ray", "rerun", "rerun_frames", "checkpoint_every")
+RESUME_MAY_CHANGE = (
+    "max_attempts",
+    "generations",
+    "workers",
+    "ray",
+    "allow_mixed_machines",
+    "rerun",
+    "rerun_frames",
+    "checkpoint_every",
+)
 
 
 def resumed_config(stored: dict[str, Any], overrides: dict[str, Any] | None = None) -> RunConfig:

@@ -128,6 +128,11 @@ class Evaluator(ABC):
     """
 
     failures: int = 0  # workers replaced after dying or timing out
+    # this machine's fingerprint (babblegen.fingerprint), known once the evaluator is ready (`wait_ready`)
+    fingerprint: str | None = None
+    # the machines that ran rollouts and compute differently (fingerprints that differ from this machine's), by
+    # name: empty unless a run allows mixed machines (`RunConfig.allow_mixed_machines`)
+    other_machines: dict[str, str] = {}  # (never changed in place: an evaluator sets its own)
 
     def submit(self, commands: list[Command], attempts: list[int]) -> None:
         if not hasattr(self, "_submitted"):
@@ -168,9 +173,12 @@ class LocalEvaluator(Evaluator):
         prepare: Prepare | None = None,
         describe: Describe | None = None,
     ):
+        from babblegen.fingerprint import fingerprint
+
         self.world = world or World(task, settings, seed=run_seed)
         self.run_seed, self.prepare, self.describe = run_seed, prepare, describe
         warm_up(self.world, prepare)
+        self.fingerprint = fingerprint(self.world)
 
     def evaluate(self, commands: list[Command], attempts: list[int]) -> list[Rollout]:
         return [

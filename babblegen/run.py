@@ -169,6 +169,7 @@ class Run:
                 "config": self.config.to_dict(),
                 "versions": versions(),
                 "machine": machine(),
+                "fingerprint": self._fingerprint_record(),
                 "task": self.task.to_dict(),
                 "robot": self.robot.to_dict(),
                 "joint_names": self.joint_names,
@@ -179,6 +180,39 @@ class Run:
         self.store.lock.acquire(self.out)
         self.store.open_sinks(self._sinks(self.repo_id)[1:])
 
+    def _fingerprint_record(self, others: dict[str, str] | None = None) -> dict[str, Any]:
+        """run.json's ``fingerprint``: this machine's (`babblegen.fingerprint`), and whether the run is mixed, with
+        the machines that compute otherwise (``nodes``, each one's fingerprint) when it is."""
+        others = {**(others or {}), **self.evaluator.other_machines}
+        record: dict[str, Any] = {"hash": self.evaluator.fingerprint, "mixed": bool(others)}
+        if others:
+            record["nodes"] = others
+        return record
+
+    def _check_machines(self) -> None:
+        """A resume on a machine that computes otherwise than the one that made the run is refused unless mixed
+        machines are allowed; run.json records mixed machines (also those that join later: a replaced Ray actor)."""
+        info = self.store.info()
+        stored = info.get("fingerprint")
+        if stored is None:  # made before fingerprints were recorded: nothing to compare
+            return
+        others = dict(stored.get("nodes", {}))
+        here = self.evaluator.fingerprint
+        if here != stored["hash"] and here not in others.values():
+            if not self.config.allow_mixed_machines:
+                raise ConfigError(
+                    f"--resume: this machine computes differently from the one that made {self.out} (fingerprint "
+                    f"{here}, {stored['hash']} recorded), so the dataset would depend on where each part was made; "
+                    "resume on a machine of its kind, or allow it with --allow-mixed-machines (run.json then records "
+                    "the run as mixed)"
+                )
+            others[f"resumed on {machine().get('cpu', 'this machine')}"] = here
+        record = self._fingerprint_record(others)
+        record["hash"] = stored["hash"]
+        if record != stored:
+            info["fingerprint"] = record
+            self.store.write_info(info)
+
     def _open_resumed(self, echo) -> None:
         store = self.store
         if not store.has_checkpoint():
@@ -188,6 +222,7 @@ class Run:
                     "which this version does not load (it could run code); start a new run"
                 )
             # died before its first commit point: nothing worth keeping, start the same run afresh
+            self._check_machines()
             info = store.dir / RUN_INFO
             data = info.read_bytes()
             store.lock.release()
@@ -198,6 +233,7 @@ class Run:
             store.record_extension(self.config.to_dict())  # with what this resume changed
             return
         ckpt = store.read_checkpoint(lambda message: print(f"babblegen: warning: {message}", file=sys.stderr))
+        self._check_machines()
         store.record_extension(self.config.to_dict())
         self.explorer.load_state_dict(ckpt["explorer"])
         self.counters.update(ckpt["counters"])
@@ -293,6 +329,8 @@ class Run:
             rollouts = self.evaluator.collect()
             waited = time.perf_counter() - t
             self._record_ends(candidates, rollouts)
+            if self.evaluator.other_machines:  # a mixed run (allowed): record the machines that joined it
+                self._check_machines()
             codes, describe_s = self._describe(rollouts)
             evaluations = self.explorer.tell(candidates, codes)
             clones = self.explorer.last_clones

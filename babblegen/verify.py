@@ -62,6 +62,7 @@ def verify(root: Path, episodes: int, echo=print) -> int:
     from babblegen.assembly import build_descriptor
     from babblegen.evaluation import seeded_rollout, warm_up
     from babblegen.exporters.lerobot import load_dataset
+    from babblegen.fingerprint import fingerprint
     from babblegen.tasks import get_task
     from babblegen.world.world import World
 
@@ -78,6 +79,7 @@ def verify(root: Path, episodes: int, echo=print) -> int:
     world = World(get_task(config.task), config.world, seed=config.seed)
     try:
         warm_up(world, None)
+        echo(fingerprint_line(info.get("fingerprint"), fingerprint(world)))
         for done, row in enumerate(rows, start=1):
             frames = np.flatnonzero(episode_of == row["episode_index"])
             recorded = {c: np.asarray(table[c], dtype=np.float32)[frames].reshape(len(frames), -1) for c in COLUMNS}
@@ -94,6 +96,26 @@ def verify(root: Path, episodes: int, echo=print) -> int:
         world.close()
     echo(f"{len(rows)} of {len(rows)} sampled episodes reproduce exactly")
     return 0
+
+
+def fingerprint_line(recorded: dict | None, here: str) -> str:
+    """Whether this machine computes like the one(s) that made the dataset, from their fingerprints
+    (`babblegen.fingerprint`; run.json's ``fingerprint``)."""
+    if recorded is None:
+        return f"fingerprint: none recorded (the dataset predates them); this machine's is {here}"
+    made = recorded["hash"]
+    others = set(recorded.get("nodes", {}).values())
+    if here == made and not others:
+        return f"fingerprint: this machine computes like the one that made the dataset ({here})"
+    if here == made or here in others:
+        return (
+            f"fingerprint: the dataset was made on machines that compute differently (mixed), this one like one of "
+            f"them ({here}): its episodes from the others may differ here"
+        )
+    return (
+        f"fingerprint: this machine computes differently from the one that made the dataset ({here} here, {made} "
+        "recorded): expect episodes to differ"
+    )
 
 
 def command_of(row: dict) -> Command:

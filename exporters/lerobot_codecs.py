@@ -14,10 +14,16 @@ DEPTH_NEAR_M = {"fixed": 0.2, "head": 0.2, "wrist": 0.02}
 
 
 # The constant-quality level and speed preset per codec: LeRobot's defaults for SVT-AV1; for H.264, x264's
-# "veryfast" preset at CRF 22, as faithful to the head camera as x264's defaults (medium, CRF 23) for about half
-# the CPU and 1.04x the bytes, and about as faithful as LeRobot's AV1 default (benchmarks/bench_codecs.py).
-CRF = {"h264": 22, "libsvtav1": 30}
+# "veryfast" preset without macroblock-tree rate control (X264_PARAMS) at CRF 27: as many bytes as x264 with it at
+# CRF 22 (1.01x on 12 head-camera episodes) and as faithful (PSNR 36.85 against 36.66 dB), about as faithful as
+# LeRobot's AV1 default (benchmarks/bench_codecs.py).
+CRF = {"h264": 27, "libsvtav1": 30}
 PRESET = {"h264": "veryfast"}  # SVT-AV1: LeRobot's own preset
+# x264's macroblock-tree rate control off. Its cost propagation (mbtree_propagate_cost) divides with an approximate
+# reciprocal (rcpps, one Newton step) in every SIMD version, whose result is the CPU maker's own: the same frames
+# could code differently on Intel and AMD (benchmarks/count_vendor_instructions.py counted 2,632 executions in 20
+# attempts; none with it off). Its plain C code divides exactly and codes other pictures.
+X264_PARAMS = "mbtree=0"
 # One encoder thread: episodes are encoded in the workers, one core each. (x264's own threads would compete with
 # the other workers' simulations, and for frames this small they cost more CPU in all and give larger files.)
 ENCODER_THREADS = 1
@@ -59,12 +65,13 @@ X264_ASM, X265_ASM = encoder_instruction_sets()
 
 def video_encoder(codec: str):
     """The encoder settings for ``codec`` (LeRobot's ``RGBEncoderConfig``: its GOP size, the CRF and preset of
-    :data:`CRF` and :data:`PRESET`)."""
+    :data:`CRF` and :data:`PRESET`, x264's :data:`X264_PARAMS`; LeRobot records them in the dataset's info)."""
     from lerobot.configs.video import RGBEncoderConfig
 
     if codec not in VIDEO_CODECS:
         raise ValueError(f"unknown video codec {codec!r}; choose one of: {', '.join(VIDEO_CODECS)}")
-    return RGBEncoderConfig(vcodec=codec, crf=CRF[codec], preset=PRESET.get(codec))
+    extra = {"x264-params": X264_PARAMS} if codec == "h264" else {}
+    return RGBEncoderConfig(vcodec=codec, crf=CRF[codec], preset=PRESET.get(codec), extra_options=extra)
 
 
 def depth_encoder(mount: str, height: int, width: int):

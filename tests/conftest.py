@@ -64,7 +64,9 @@ def small_heldout_dataset(tmp_path_factory) -> Path:
 
 
 # modules whose every test runs the simulator: the fast tier does not even import them (SAPIEN, OMPL)
-SIM_MODULES = {"test_kinematics.py", "test_parallel.py", "test_scenes.py", "test_world.py"}
+SIM_MODULES = {
+    "test_contacts.py", "test_kinematics.py", "test_parallel.py", "test_reference.py", "test_scenes.py", "test_world.py"
+}  # fmt: skip
 
 
 def pytest_ignore_collect(collection_path: Path, config) -> bool | None:

@@ -101,7 +101,7 @@ def test_dataset_loads_and_agrees_with_sidecar(small_run):
         assert contacts.sum(axis=0).astype(int).tolist() == [row["contact_frames"][n] for n in names]
         final = frames[-1]["observation.environment_state"].numpy().reshape(len(names), 7)
         np.testing.assert_allclose(final, [row["final_poses"][n] for n in names], atol=1e-5)
-        # The descriptor was computed on the raw render; the video is lossy (H.264, CRF 22), which moves a
+        # The descriptor was computed on the raw render; the video is lossy (H.264, CRF 27), which moves a
         # pHash by a few bits (64-bit: 0-2 measured; 256-bit: a few more), far below two outcomes' distance.
         code = phash(to_uint8_image(frames[-1]["observation.images.head"].numpy()))
         assert hamming(code[None], codes[row["episode_index"]][None])[0, 0] <= phash.n_bits // 16
@@ -118,6 +118,9 @@ def test_run_info_records_how_the_dataset_was_made(small_run):
     flags = set(next(line for line in cpuinfo.splitlines() if line.startswith("flags")).split(":", 1)[1].split())
     some = {"sse4_2", "avx2", "fma", "avx512f"}
     assert set(info["machine"]["cpu_flags"]) & some == flags & some
+    # how this machine computes: the hash of a short canonical simulation and render (babblegen.fingerprint)
+    assert set(info["fingerprint"]) == {"hash", "mixed"} and not info["fingerprint"]["mixed"]
+    assert len(info["fingerprint"]["hash"]) == 16 and int(info["fingerprint"]["hash"], 16) >= 0
     assert info["machine"]["cpu"].split(" (family")[0] in cpuinfo
 
 
@@ -354,6 +357,29 @@ def test_a_damaged_checkpoint_falls_back_to_the_commit_point_before_it(small_run
     assert generate(spare, "--seed", "2", "--resume") == 2
     err = capsys.readouterr().err
     assert "damaged" in err and "no earlier commit point" in err and "Traceback" not in err
+
+
+def test_a_resume_on_a_machine_that_computes_otherwise_is_refused_unless_mixed_machines_are_allowed(
+    small_run, tmp_path, capsys, monkeypatch
+):
+    import shutil
+
+    out = tmp_path / "elsewhere"
+    shutil.copytree(small_run, out)
+    made = read_run_info(out)["fingerprint"]["hash"]
+    monkeypatch.setenv("BABBLEGEN_FINGERPRINT_SALT", "another machine")  # as a machine of another kind computes
+    files = {f: f.read_bytes() for f in out.rglob("*") if f.is_file() and f.name != "run.lock"}
+    assert generate(out, "--seed", "2", "--resume") == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "this machine computes differently from the one that made" in err[0], err
+    assert made in err[0] and "--allow-mixed-machines" in err[0]
+    after = {f: f.read_bytes() for f in out.rglob("*") if f.is_file() and f.name != "run.lock"}
+    assert after == files, "refused before anything was written"
+    assert generate(out, "--seed", "2", "--resume", "--allow-mixed-machines") == 0
+    record = read_run_info(out)["fingerprint"]
+    assert record["hash"] == made and record["mixed"] is True
+    (where, theirs), *more = record["nodes"].items()
+    assert not more and where.startswith("resumed on ") and theirs != made
 
 
 def test_resume_extends_a_run(small_run, tmp_path, capsys):

@@ -207,7 +207,7 @@ def test_the_recorded_codec_is_the_one_asked_for_and_a_resume_cannot_switch_it(d
     _, ours = datasets
     info = json.loads((ours.root / "meta/info.json").read_text())["features"]["observation.images.head"]["info"]
     codec = {"h264": "h264", "av1": "libsvtav1"}[info["video.codec"]]
-    assert info["video.g"] == 2 and info["video.crf"] == {"h264": 22, "libsvtav1": 30}[codec]
+    assert info["video.g"] == 2 and info["video.crf"] == {"h264": 27, "libsvtav1": 30}[codec]
     other = next(c for c in VIDEO_CODECS if c != codec)
     with pytest.raises(ValueError, match=f"cannot take episodes encoded with {other}"):
         SegmentWriter.reopen(ours.root, "test/segments", other)

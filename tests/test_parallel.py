@@ -267,6 +267,38 @@ def test_two_ray_nodes_write_the_same_dataset_as_one_worker(one_worker, one_work
     assert read_run_info(out)["config"]["ray"] == address
 
 
+def test_a_ray_node_that_computes_otherwise_is_refused_unless_mixed_machines_are_allowed(tmp_path, capsys):
+    """A two-node cluster whose second node's processes compute another fingerprint (as a machine of another kind
+    would): the run stops at the start with one line naming that node; allowed, it runs and run.json says mixed."""
+    ray = pytest.importorskip("ray")
+    from ray.cluster_utils import Cluster
+
+    from babblegen.fingerprint import SALT_ENV
+
+    cluster = Cluster(initialize_head=True, head_node_args={"num_cpus": 1, "include_dashboard": False})
+    try:
+        node = cluster.add_node(num_cpus=1, env_vars={SALT_ENV: "another kind of machine"})
+        cluster.wait_for_nodes()
+        argv = ["generate", "--seed", "2", "--ray", cluster.address, "--workers", "2", *ARGS, "--max-attempts", "8"]
+        refused = tmp_path / "refused"
+        assert main([argv[0], "--out", str(refused), *argv[1:]]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and err[0].startswith("babblegen: error: Ray node "), err
+        assert f"(node {node.node_id[:12]}) computes differently from this machine" in err[0]
+        assert "--allow-mixed-machines" in err[0]
+        assert not (refused / "babblegen" / "run.json").exists()
+        mixed = tmp_path / "mixed"
+        assert main([argv[0], "--out", str(mixed), *argv[1:], "--allow-mixed-machines"]) == 0
+    finally:
+        ray.shutdown()
+        cluster.shutdown()
+    record = read_run_info(mixed)["fingerprint"]
+    (where, theirs), *more = record["nodes"].items()
+    assert record["mixed"] is True and not more
+    assert node.node_id[:12] in where and theirs != record["hash"]
+    assert read_run_info(mixed)["config"]["allow_mixed_machines"] is True
+
+
 def _commands(n: int) -> list[Command]:
     rng = np.random.default_rng(7)
     return [Command("ee_waypoints", rng.uniform(0, 1, (1, 3))) for _ in range(n)]

@@ -12,7 +12,33 @@ from babblegen.provenance import machine
 
 def test_a_dataset_made_here_reproduces_exactly(small_noveb_dataset: Path, capsys):
     assert main(["verify", str(small_noveb_dataset), "--episodes", "4"]) == 0
-    assert capsys.readouterr().out.strip().splitlines()[-1] == "4 of 4 sampled episodes reproduce exactly"
+    lines = capsys.readouterr().out.strip().splitlines()
+    here = json.loads((small_noveb_dataset / "babblegen" / "run.json").read_text())["fingerprint"]["hash"]
+    assert lines[0] == f"fingerprint: this machine computes like the one that made the dataset ({here})"
+    assert lines[-1] == "4 of 4 sampled episodes reproduce exactly"
+
+
+def test_verify_says_first_whether_this_machine_computes_like_the_one_that_made_the_dataset(
+    small_noveb_dataset: Path, tmp_path, capsys
+):
+    copy = tmp_path / "copy"
+    shutil.copytree(small_noveb_dataset, copy)
+    info_path = copy / "babblegen" / "run.json"
+    info = json.loads(info_path.read_text())
+    here = info["fingerprint"]["hash"]
+    info["fingerprint"]["hash"] = "0123456789abcdef"  # as if made on a machine of another kind
+    info_path.write_text(json.dumps(info))
+    assert main(["verify", str(copy), "--episodes", "1"]) == 0  # (it does compute like this one)
+    first = capsys.readouterr().out.splitlines()[0]
+    assert first == (
+        f"fingerprint: this machine computes differently from the one that made the dataset ({here} here, "
+        "0123456789abcdef recorded): expect episodes to differ"
+    )
+    del info["fingerprint"]  # made before fingerprints were recorded
+    info_path.write_text(json.dumps(info))
+    assert main(["verify", str(copy), "--episodes", "1"]) == 0
+    first = capsys.readouterr().out.splitlines()[0]
+    assert first == f"fingerprint: none recorded (the dataset predates them); this machine's is {here}"
 
 
 def test_a_recorded_value_that_differs_is_named_with_a_non_zero_exit(small_noveb_dataset: Path, tmp_path, capsys):

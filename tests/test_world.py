@@ -106,8 +106,10 @@ def test_free_air_touches_nothing(world):
     assert r.feasible, r.reason
     assert not r.touched.any()
     assert (r.frames.contacts == 0).all()
-    assert (r.displacement < 1e-4).all(), r.displacement  # resting objects settle by ~1e-6 m
-    np.testing.assert_array_equal(r.after_image, r.before_image)
+    assert (r.displacement < 1e-4).all(), r.displacement  # resting objects settle by micrometres
+    # Without PCM the can settles by 5 um (1 um with it), which moves a pixel or two at its edge by one level
+    diff = np.abs(r.after_image.astype(np.int16) - r.before_image.astype(np.int16)).max(axis=-1)
+    assert diff.max() <= 1 and (diff > 0).sum() <= 3, (diff.max(), (diff > 0).sum())
     # the tool really went there (within the IK tolerance plus the controller's tracking error)
     err = np.linalg.norm(r.frames.ee_pos - FREE_AIR[0], axis=1).min()
     assert err < 0.02, err

@@ -33,7 +33,16 @@ def make_parallel_evaluator(
 
         n = config.workers if config.workers > 1 else None
         try:
-            return RayEvaluator(task, config.world, config.seed, config.ray, n=n, prepare=prepare, describe=describe)
+            return RayEvaluator(
+                task,
+                config.world,
+                config.seed,
+                config.ray,
+                n=n,
+                prepare=prepare,
+                describe=describe,
+                allow_mixed=config.allow_mixed_machines,
+            )
         except ImportError:
             raise ConfigError("--ray needs Ray: pip install 'babblegen[ray]'") from None
     return ProcessEvaluator(task, config.world, config.seed, config.workers, prepare=prepare, describe=describe)

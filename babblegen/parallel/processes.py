@@ -104,8 +104,9 @@ class ProcessEvaluator(PoolEvaluator):
     def _await_ready(self, w: _Worker, timeout: float = 600.0) -> None:
         if not w.conn.poll(timeout):
             raise RuntimeError("a rollout worker did not start")
-        tag, _ = w.conn.recv()
+        tag, fingerprint = w.conn.recv()
         assert tag == "ready"
+        self.fingerprint = self.fingerprint or fingerprint  # every worker runs on this machine
 
     def _started(self, slot: int, job: tuple[int, Command] | None) -> None:
         self.workers[slot].job = job

@@ -1,8 +1,14 @@
 """Rollouts on Ray actors, for more than one machine: one actor per worker slot, each with its own World, under
-the same scheduling and failure policy as local processes (`babblegen.parallel.scheduler`)."""
+the same scheduling and failure policy as local processes (`babblegen.parallel.scheduler`).
+
+Every actor computes its machine's fingerprint when it starts (`babblegen.fingerprint`), and the coordinator its
+own, in a child process. An actor whose fingerprint differs, at the start or replacing one, stops the run with one
+line naming its node, unless the run allows mixed machines; then the run goes on and records the node's.
+"""
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 import time
@@ -34,10 +40,15 @@ class RayEvaluator(PoolEvaluator):
         retries: int = 2,
         prepare: Prepare | None = None,
         describe: Describe | None = None,
+        allow_mixed: bool = False,
     ):
         import ray
 
+        from babblegen.fingerprint import finish_subprocess, start_in_subprocess
+
         self.ray = ray
+        self.allow_mixed, self.other_machines = allow_mixed, {}
+        computing = start_in_subprocess(task.name, settings)  # while the actors start
         self._owns_ray = not ray.is_initialized()
         if self._owns_ray:
             options = {"include_dashboard": False, "log_to_driver": False, "configure_logging": False}
@@ -45,6 +56,7 @@ class RayEvaluator(PoolEvaluator):
                 ray.init(address=None if address == "local" else address, **options)
             except ConnectionError:
                 if address != "auto":
+                    computing.kill()
                     raise ConfigError(f"--ray {address}: no Ray cluster there") from None
                 log.info("no running Ray cluster; starting a local one")
                 ray.init(address=None, **options)
@@ -66,15 +78,20 @@ class RayEvaluator(PoolEvaluator):
 
                 torch.set_num_threads(1)
                 from babblegen.evaluation import warm_up
+                from babblegen.fingerprint import fingerprint
                 from babblegen.tasks import get_task
                 from babblegen.world.world import World
 
                 self.world = World(get_task(task_name), settings, seed=run_seed)
                 warm_up(self.world, prepare)
                 self.run_seed, self.prepare, self.describe = run_seed, prepare, describe
+                self.fingerprint = fingerprint(self.world)
+                context = ray.get_runtime_context()
+                self.node = f"{ray.util.get_node_ip_address()} (node {context.get_node_id()[:12]})"
 
-            def ping(self) -> bool:
-                return True
+            def ping(self) -> tuple[str, str]:
+                """Its node, and its fingerprint there."""
+                return self.node, self.fingerprint
 
             def rollout(self, attempt: int, command: Command) -> Rollout:
                 from babblegen.evaluation import seeded_rollout
@@ -84,8 +101,30 @@ class RayEvaluator(PoolEvaluator):
         self._actor_cls = RolloutActor
         self._args = (task.name, settings, run_seed, prepare, describe)
         self.actors = [self._actor_cls.remote(*self._args) for _ in range(n)]
-        ray.get([a.ping.remote() for a in self.actors])
+        try:
+            self.fingerprint = finish_subprocess(computing)
+            for node, fingerprint in ray.get([a.ping.remote() for a in self.actors]):
+                self._admit(node, fingerprint)
+        except BaseException:
+            computing.kill()
+            self._stop_actors()
+            raise
         self._refs: dict[int, object] = {}
+
+    def _admit(self, node: str, fingerprint: str) -> None:
+        """Refuse an actor whose machine computes differently from this one, unless mixed machines are allowed
+        (then remember its node)."""
+        if fingerprint == self.fingerprint:
+            return
+        if not self.allow_mixed:
+            raise ConfigError(
+                f"Ray node {node} computes differently from this machine (fingerprint {fingerprint}, here "
+                f"{self.fingerprint}), so the dataset would depend on which node ran which movement; use machines "
+                "of one kind, or allow it with --allow-mixed-machines (run.json then records the run as mixed)"
+            )
+        if node not in self.other_machines:
+            log.warning("Ray node %s computes differently from this machine; the run is mixed", node)
+            self.other_machines = {**self.other_machines, node: fingerprint}
 
     def _send(self, slot: int, attempt: int, command: Command, more: bool) -> None:
         self._refs[slot] = self.actors[slot].rollout.remote(attempt, command)
@@ -115,10 +154,16 @@ class RayEvaluator(PoolEvaluator):
         self._refs.pop(slot, None)
         self.ray.kill(self.actors[slot])
         self.actors[slot] = self._actor_cls.remote(*self._args)
+        # (one that dies starting fails its first rollout, and the failure policy replaces it)
+        with contextlib.suppress(self.ray.exceptions.RayActorError):
+            self._admit(*self.ray.get(self.actors[slot].ping.remote()))
 
-    def close(self) -> None:
-        self._stop_dispatch()
+    def _stop_actors(self) -> None:
         for a in self.actors:
             self.ray.kill(a)
         if self._owns_ray:
             self.ray.shutdown()
+
+    def close(self) -> None:
+        self._stop_dispatch()
+        self._stop_actors()

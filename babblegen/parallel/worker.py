@@ -64,13 +64,14 @@ def _serve(
 
     torch.set_num_threads(1)  # one core per worker: idle torch threads would spin against the other processes
     from babblegen.evaluation import render_and_prepare_stepwise, seeded_rollout, warm_up
+    from babblegen.fingerprint import fingerprint
     from babblegen.tasks import get_task
     from babblegen.world.world import World
 
     world = World(get_task(task_name), settings, seed=run_seed)
     try:
         warm_up(world, prepare)
-        conn.send(("ready", None))
+        conn.send(("ready", fingerprint(world)))
         pending: dict[int, Rollout] = {}  # to render and prepare here (simulated here or handed over), in order
         work: tuple[int, Rollout, Iterator[None]] | None = None  # the preparation under way, and its steps
         more = False
