@@ -234,7 +234,8 @@ def build_parser() -> argparse.ArgumentParser:
         choices=VIDEO_CODECS,
         default=None,
         help="head-camera video codec; libsvtav1 is LeRobot's own default, h264 encodes about 6x faster for "
-        "about the same fidelity and size [default: h264]",
+        "about the same fidelity and size; h264_mbtree is x264 as runs made before (its macroblock-tree rate "
+        "control, whose approximate reciprocals give each CPU maker's own bytes) [default: h264]",
     )
     g.add_argument("--no-progress", action="store_true", help="no progress bar")
     g.set_defaults(func=cmd_generate)

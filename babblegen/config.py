@@ -17,7 +17,9 @@ from babblegen.world.settings import LEGACY_CAMERAS, WorldSettings
 # The head camera's video codecs (settings: babblegen.exporters.lerobot_codecs.video_encoder). H.264 is the
 # default: on frames like 128x128 it costs about a third of the CPU time of LeRobot's own default, SVT-AV1, for
 # about the same fidelity and size (benchmarks/bench_codecs.py), and every LeRobot video backend decodes it.
-VIDEO_CODECS = ("h264", "libsvtav1")
+# "h264": x264 without macroblock-tree rate control (whose rcpps gives each CPU maker's own bits); "h264_mbtree": x264
+# with it, at CRF 22, as runs made before (exporters/lerobot_codecs.py); "libsvtav1": LeRobot's default
+VIDEO_CODECS = ("h264", "libsvtav1", "h264_mbtree")
 RERUN_FRAMES = ("ends", "all")  # what a run's Rerun recording logs per episode (exporters.rerun.columns)
 
 
@@ -155,6 +157,8 @@ def resumed_config(stored: dict[str, Any], overrides: dict[str, Any] | None = No
     data["world"].setdefault("return_home", "retrace")  # stored before the setting existed: the arm retraced
     data["world"].setdefault("max_move_seconds", 0.0)  # ... and any movement was executed
     data["world"].setdefault("count_approach", True)  # ... and a bound counted the way to the first waypoint
+    if "pcm" not in data["world"] and data.get("video_codec", "libsvtav1") == "h264":
+        data["video_codec"] = "h264_mbtree"  # stored before either change: x264 ran its macroblock tree
     data["world"].setdefault("pcm", True)  # ... and PhysX generated contacts with persistent manifolds
     for key, value in (overrides or {}).items():
         if value is None:

@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from babblegen.exporters.lerobot_codecs import feature_encoder
+from babblegen.exporters.lerobot_codecs import base_codec, feature_encoder
 from babblegen.exporters.lerobot_encoding import DEFAULT_VIDEO_CODEC, EncodedEpisode, encode_episode
 from babblegen.exporters.lerobot_schema import HEAD, features
 from babblegen.exporters.lerobot_stats import numeric_stats
@@ -62,7 +62,7 @@ class SegmentWriter:
 
         self.root, self.meta, self.codec = Path(root), meta, codec
         recorded = (meta.features[HEAD].get("info") or {}).get("video.codec")
-        if recorded is not None and VIDEO_CODECS_ALIASES.get(recorded, recorded) != codec:
+        if recorded is not None and VIDEO_CODECS_ALIASES.get(recorded, recorded) != base_codec(codec):
             raise ValueError(f"{root} holds {recorded} video; it cannot take episodes encoded with {codec}")
         self.pending: list[tuple[EncodedEpisode, str]] = []
         self.total_frames = meta.total_frames

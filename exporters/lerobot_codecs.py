@@ -17,8 +17,8 @@ DEPTH_NEAR_M = {"fixed": 0.2, "head": 0.2, "wrist": 0.02}
 # "veryfast" preset without macroblock-tree rate control (X264_PARAMS) at CRF 27: as many bytes as x264 with it at
 # CRF 22 (1.01x on 12 head-camera episodes) and as faithful (PSNR 36.85 against 36.66 dB), about as faithful as
 # LeRobot's AV1 default (benchmarks/bench_codecs.py).
-CRF = {"h264": 27, "libsvtav1": 30}
-PRESET = {"h264": "veryfast"}  # SVT-AV1: LeRobot's own preset
+CRF = {"h264": 27, "libsvtav1": 30, "h264_mbtree": 22}  # h264_mbtree: x264 as runs made before, at CRF 22
+PRESET = {"h264": "veryfast", "h264_mbtree": "veryfast"}  # SVT-AV1: LeRobot's own preset
 # x264's macroblock-tree rate control off. Its cost propagation (mbtree_propagate_cost) divides with an approximate
 # reciprocal (rcpps, one Newton step) in every SIMD version, whose result is the CPU maker's own: the same frames
 # could code differently on Intel and AMD (benchmarks/count_vendor_instructions.py counted 2,632 executions in 20
@@ -71,7 +71,12 @@ def video_encoder(codec: str):
     if codec not in VIDEO_CODECS:
         raise ValueError(f"unknown video codec {codec!r}; choose one of: {', '.join(VIDEO_CODECS)}")
     extra = {"x264-params": X264_PARAMS} if codec == "h264" else {}
-    return RGBEncoderConfig(vcodec=codec, crf=CRF[codec], preset=PRESET.get(codec), extra_options=extra)
+    return RGBEncoderConfig(vcodec=base_codec(codec), crf=CRF[codec], preset=PRESET.get(codec), extra_options=extra)
+
+
+def base_codec(codec: str) -> str:
+    """The encoder a codec setting runs: ``h264_mbtree`` is x264 (``h264``) with other options."""
+    return "h264" if codec == "h264_mbtree" else codec
 
 
 def depth_encoder(mount: str, height: int, width: int):

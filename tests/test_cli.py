@@ -488,6 +488,24 @@ def test_a_resumed_run_keeps_its_video_codec():
     assert resumed_config(stored).video_codec == "libsvtav1"
 
 
+def test_a_run_stored_before_pcm_went_off_resumes_with_pcm_and_x264_s_macroblock_tree():
+    """Runs stored before these settings ran PhysX with persistent contact manifolds and x264 with its
+    macroblock-tree rate control at CRF 22: they resume as they were made; new runs use neither."""
+    from babblegen.exporters.lerobot_codecs import video_encoder
+
+    stored = RunConfig().to_dict()
+    assert resumed_config(stored).video_codec == "h264" and not resumed_config(stored).world.pcm
+    del stored["world"]["pcm"]
+    old = resumed_config(stored)
+    assert old.world.pcm and old.video_codec == "h264_mbtree"
+    new, before = video_encoder("h264"), video_encoder("h264_mbtree")
+    assert new.vcodec == before.vcodec == "h264"
+    assert (new.crf, before.crf) == (27, 22)
+    assert new.extra_options == {"x264-params": "mbtree=0"} and not before.extra_options
+    stored["video_codec"] = "libsvtav1"
+    assert resumed_config(stored).video_codec == "libsvtav1"
+
+
 def test_recording_frames_may_change_on_resume_and_older_runs_keep_every_frame():
     stored = RunConfig().to_dict()
     assert resumed_config(stored).rerun_frames == "ends"
