@@ -186,9 +186,10 @@ def build_parser() -> argparse.ArgumentParser:
         "--starts",
         choices=START_MODES,
         default=None,
-        help="where episodes start: 'fixed', the paper's scene every time, or 'varied', object layouts drawn from "
-        "the task's regions and settled by physics (NovEB children keep their parent's start unless a start "
-        "mutation draws a new one: [noveb] start_mutation_prob) [default: fixed]",
+        help="where episodes start: 'varied', object layouts drawn from the task's regions and settled by physics "
+        "(NovEB children keep their parent's start unless a start mutation draws a new one: [noveb] "
+        "start_mutation_prob), or 'fixed', the paper's scene every time (with the rest of the defaults, the search "
+        "as babblegen ran it before varied starts became the default) [default: varied]",
     )
     g.add_argument(
         "--checkpoint-every",

@@ -182,7 +182,7 @@ def test_impossible_values_are_refused(tmp_path, capsys, flags, message):
         (["--max-attempts", "-3"], "must not be negative"),
         (["--explorer", "genetic"], "invalid choice: 'genetic' (choose from 'noveb', 'random', 'random_waypoints')"),
         (["--task", "kitchen"], "invalid choice: 'kitchen' (choose from 'noveb_tabletop'"),
-        (["--video-codec", "vp9"], "invalid choice: 'vp9' (choose from 'h264', 'libsvtav1')"),
+        (["--video-codec", "vp9"], "invalid choice: 'vp9' (choose from 'h264', 'libsvtav1', 'h264_mbtree')"),
         (["--starts", "random"], "invalid choice: 'random' (choose from 'fixed', 'varied')"),
     ],
 )
@@ -462,7 +462,7 @@ def test_help_and_config_do_not_load_the_simulator():
         ("noveb = 3\n", "[noveb] must be a table"),
         ("[noveb]\nnot_an_option = 1\n", "unknown keys in [noveb]: not_an_option"),
         ("seed = \n", "is not valid TOML"),
-        ('video_codec = "vp9"\n', "unknown video codec 'vp9'; choose one of: h264, libsvtav1"),
+        ('video_codec = "vp9"\n', "unknown video codec 'vp9'; choose one of: h264, libsvtav1, h264_mbtree"),
     ],
 )
 def test_a_bad_config_file_is_refused_with_one_line(tmp_path, capsys, toml, message):

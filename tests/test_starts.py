@@ -261,7 +261,8 @@ def test_change_descriptor_gates_flicker_and_measures_the_change():
 
 
 def test_auto_descriptor_follows_the_starts():
-    assert RunConfig().descriptor_config() == {"name": "phash16"}
+    assert RunConfig().descriptor_config() == {"name": "change16"}, "varied starts by default"
+    assert RunConfig.from_dict({"world": {"starts": "fixed"}}).descriptor_config() == {"name": "phash16"}
     varied = RunConfig.from_dict({"world": {"starts": "varied"}})
     assert varied.descriptor_config() == {"name": "change16"}
     varied.validate()
@@ -282,7 +283,7 @@ def test_bad_start_settings_are_refused_with_one_line():
     try:
         with pytest.raises(ConfigError, match="task 'bare' declares no start distribution"):
             RunConfig.from_dict({"task": "bare", "world": {"starts": "varied"}}).validate()
-        RunConfig.from_dict({"task": "bare"}).validate()  # fixed starts need none
+        RunConfig.from_dict({"task": "bare", "world": {"starts": "fixed"}}).validate()  # fixed starts need none
     finally:
         TASKS.pop("bare")
     with pytest.raises(ValueError, match="probability"):
@@ -294,7 +295,7 @@ def test_resume_refuses_other_starts_and_runs_stored_before_resume_fixed():
     stored.validate()
     data = stored.to_dict()
     with pytest.raises(ConfigError, match="cannot change 'starts'"):
-        resumed_config(data, {"starts": "varied"})
+        resumed_config(data, {"starts": "fixed"})
     del data["world"]["starts"]
     data["descriptor"] = "phash16"
     assert resumed_config(data).world.starts == "fixed"

@@ -97,9 +97,10 @@ class WorldSettings:
     ik_tolerance: float = 0.005  # metres
     ik_seeds: int = 8
     collision_margin: float = 0.01  # metres kept from table, floor and robot body
-    # where episodes start: "fixed" (the paper's scene, every time) or "varied" (layouts the task declares, drawn
-    # per start and settled by physics; babblegen.starts)
-    starts: str = "fixed"
+    # where episodes start: "varied" (layouts the task declares, drawn per start and settled by physics;
+    # babblegen.starts), the default since a world model trained on it predicts scenes it never saw
+    # (docs/world_model.md), or "fixed" (the paper's scene, every time)
+    starts: str = "varied"
     start_settle_seconds: float = 2.0  # a varied start settles until at rest, at most this long (else not used)
     # what is recorded: the head camera (the behaviour camera, always) and any others, each with its modalities
     cameras: tuple[CameraView, ...] = field(default_factory=lambda: default_cameras())
