@@ -23,8 +23,9 @@ from babblegen.world.world import WorldSettings
 
 # generations overlap (lag 2: three in flight), so workers take movements of several generations at once, and the
 # results must still be applied in attempt order
-ARGS = ["--max-attempts", "40", "--checkpoint-every", "1", "--width", "64", "--height", "64", "--no-progress"]
-ARGS += ["--children", "8", "--lag", "2"]
+BASE = ["--max-attempts", "40", "--checkpoint-every", "1", "--width", "64", "--height", "64", "--no-progress"]
+BASE += ["--children", "8", "--lag", "2"]
+ARGS = [*BASE, "--starts", "fixed"]
 SETTINGS = WorldSettings(camera_width=64, camera_height=64)
 # numpy without its AVX-512 code, as on a CPU without it (benchmarks/check_dispatch.py)
 NO_AVX512 = "AVX512F AVX512CD AVX512_SKX AVX512_CLX AVX512_CNL AVX512_ICL AVX512_SPR"
@@ -152,7 +153,7 @@ def test_another_cpu_dispatch_writes_the_same_dataset(one_worker, tmp_path, sett
     assert_same_dataset(one_worker, out)
 
 
-VARIED = [*ARGS, "--starts", "varied"]
+VARIED = [*BASE, "--starts", "varied"]
 
 
 @pytest.fixture(scope="module")
@@ -236,8 +237,10 @@ def test_ray_auto_starts_a_local_cluster_and_writes_the_same_dataset(one_worker,
     assert_same_dataset(one_worker, out)
 
 
-@pytest.mark.parametrize("starts", ["fixed", "varied"])
-def test_two_ray_nodes_write_the_same_dataset_as_one_worker(one_worker, one_worker_varied, tmp_path, starts):
+@pytest.mark.parametrize("starts", ["fixed", "varied", "made"])
+def test_two_ray_nodes_write_the_same_dataset_as_one_worker(
+    one_worker, one_worker_varied, one_worker_made, tmp_path, starts
+):
     """A real multi-node cluster on this machine: two Ray nodes with one CPU each, so the two rollout actors
     (one CPU each) must run on different nodes; the second node's processes run numpy without its AVX-512 code and
     lavapipe as on a CPU without AVX-512, as a node with another CPU would."""
@@ -257,13 +260,13 @@ def test_two_ray_nodes_write_the_same_dataset_as_one_worker(one_worker, one_work
         assert ray.get(setting.options(scheduling_strategy=on_node, num_cpus=1).remote()) == other_cpu
         ray.shutdown()
         out = tmp_path / "two-nodes"
-        args = VARIED if starts == "varied" else ARGS
+        args = {"fixed": ARGS, "varied": VARIED, "made": MADE}[starts]
         argv = ["generate", "--out", str(out), "--seed", "2", "--ray", address, "--workers", "2", *args]
         assert main(argv) == 0
     finally:
         ray.shutdown()
         cluster.shutdown()
-    assert_same_dataset(one_worker_varied if starts == "varied" else one_worker, out)
+    assert_same_dataset({"fixed": one_worker, "varied": one_worker_varied, "made": one_worker_made}[starts], out)
     assert read_run_info(out)["config"]["ray"] == address
 
 
