@@ -1,8 +1,9 @@
 """Shared fixtures: small real datasets made once per test session with the real CLI; the test tiers.
 
-`small_noveb_dataset` (NovEB, with Rerun recordings) and `small_random_dataset` (random babbling), both of seed 0,
-and `small_heldout_dataset` (uniform random waypoints from varied starts, seed 7) each hold 24 attempts at 64x64
-pixels, committed after every generation. Treat them as read-only: copy what a test changes.
+`small_noveb_dataset` (NovEB, with Rerun recordings) and `small_random_dataset` (random babbling), both of seed 0
+from the default varied starts, and `small_heldout_dataset` (uniform random waypoints from varied starts, seed 7)
+each hold 24 attempts at 64x64 pixels, committed after every generation. Treat them as read-only: copy what a
+test changes.
 
 Two tiers: tests that run the simulator are marked `sim` (here for those that use a simulated fixture,
 explicitly for the others); `pytest -m "not sim"` is the fast tier, `pytest` runs both.

@@ -52,16 +52,27 @@ def assert_contact_rich(rows: list[dict]) -> None:
     assert any(a and b for a, b in zip(touched, touched[1:], strict=False)), touched
 
 
-@pytest.fixture(scope="module")
-def small_run(tmp_path_factory) -> Path:
+def console_run(tmp_path_factory, *flags: str) -> Path:
     """24 attempts, a commit point after every generation, made by the real console script; what it printed
     is kept in console.txt beside the dataset."""
     out = tmp_path_factory.mktemp("cli") / "ds"
-    cmd = [sys.executable, "-m", "babblegen.cli", "generate", "--out", str(out), *SMALL, "--seed", "2"]
+    cmd = [sys.executable, "-m", "babblegen.cli", "generate", "--out", str(out), *SMALL, "--seed", "2", *flags]
     proc = subprocess.run(cmd, capture_output=True, text=True, timeout=900)
     assert proc.returncode == 0, proc.stdout + proc.stderr
     (out.parent / "console.txt").write_text(proc.stdout + proc.stderr)
     return out
+
+
+@pytest.fixture(scope="module")
+def small_run(tmp_path_factory) -> Path:
+    """The defaults (varied starts)."""
+    return console_run(tmp_path_factory)
+
+
+@pytest.fixture(scope="module")
+def small_fixed_run(tmp_path_factory) -> Path:
+    """The paper's scene, hashed by the plain pHash of the after image."""
+    return console_run(tmp_path_factory, "--starts", "fixed")
 
 
 def test_a_run_with_many_commit_points_prints_a_handful_of_lines(small_run):
@@ -72,7 +83,9 @@ def test_a_run_with_many_commit_points_prints_a_handful_of_lines(small_run):
     assert lines[0].startswith("finished: 24 attempts")
 
 
-def test_dataset_loads_and_agrees_with_sidecar(small_run):
+@pytest.mark.parametrize("run", ["small_run", "small_fixed_run"])
+def test_dataset_loads_and_agrees_with_sidecar(run, request):
+    small_run = request.getfixturevalue(run)
     rows = read_attempts(small_run)
     info = read_run_info(small_run)
     assert len(rows) == 24 and [r["attempt"] for r in rows] == list(range(24))
@@ -101,6 +114,11 @@ def test_dataset_loads_and_agrees_with_sidecar(small_run):
         assert contacts.sum(axis=0).astype(int).tolist() == [row["contact_frames"][n] for n in names]
         final = frames[-1]["observation.environment_state"].numpy().reshape(len(names), 7)
         np.testing.assert_allclose(final, [row["final_poses"][n] for n in names], atol=1e-5)
+        if getattr(phash, "compares_before", False):
+            # Not from the video: the change descriptor gates each pixel's difference between the first and last
+            # frame at 24 levels, and H.264 at CRF 27 on 64 px frames moves some pixels across it, so episodes
+            # recorded as "nothing changed" read as changed (11 of 24 here). The plain pHash is checked below.
+            continue
         # The descriptor was computed on the raw render; the video is lossy (H.264, CRF 27), which moves a
         # pHash by a few bits (64-bit: 0-2 measured; 256-bit: a few more), far below two outcomes' distance.
         code = phash(to_uint8_image(frames[-1]["observation.images.head"].numpy()))

@@ -112,7 +112,7 @@ def test_figures_are_real_images(report):
     assert (out / START_FIGURE[1]).stat().st_size > 10_000
     md = (out / "summary.md").read_text()
     assert "contacts per attempt" in md and "random babbling" in md and "contact ratio" in md
-    assert START_FIGURE[1] in md and "| starts (" in md and summary["run"]["starts"] == "fixed"
+    assert START_FIGURE[1] in md and "| starts (" in md and summary["run"]["starts"] == "varied"  # the default
 
 
 def test_report_needs_only_the_sidecar_and_defaults_to_dir_report(small_noveb_dataset, tmp_path):

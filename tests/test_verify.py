@@ -47,7 +47,8 @@ def test_a_recorded_value_that_differs_is_named_with_a_non_zero_exit(small_noveb
     path = copy / "babblegen" / "attempts.jsonl"
     rows = [json.loads(line) for line in path.read_text().splitlines()]
     executed = [r for r in rows if r["feasible"]]
-    executed[0]["descriptor"] = "0" * len(executed[0]["descriptor"])  # the first episode verify samples
+    recorded = executed[0]["descriptor"]  # the first episode verify samples; "nothing changed" is all zeros
+    executed[0]["descriptor"] = ("f" if set(recorded) == {"0"} else "0") * len(recorded)
     path.write_text("".join(json.dumps(r) + "\n" for r in rows))
     info_path = copy / "babblegen" / "run.json"
     info = json.loads(info_path.read_text())
