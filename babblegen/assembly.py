@@ -16,13 +16,11 @@ def build_explorer(config: RunConfig, arm: dict[str, Any], overrides: dict[str, 
     """The configured explorer, seeded with the run seed; ``arm`` is :func:`babblegen.evaluation.arm_info`'s
     answer and ``overrides`` changes explorer options (benchmarks only)."""
     from babblegen.explorers import make_explorer
-    from babblegen.starts import StartSampler
-    from babblegen.tasks import get_task
 
     options = {**config.explorer_config(), **(overrides or {})}
     if config.explorer != "noveb":
         options.pop("reuse_clones", None)
-    starts = StartSampler(get_task(config.task), config.seed) if config.world.starts == "varied" else None
+    starts = build_starts(config)
     return make_explorer(
         config.explorer,
         options,
@@ -32,6 +30,28 @@ def build_explorer(config: RunConfig, arm: dict[str, Any], overrides: dict[str, 
         starts=starts,
         in_reach=arm.get("in_reach"),
     )
+
+
+def build_task(config: RunConfig):
+    """The run's task: the configured one, with its object slots when the run draws its objects
+    (`babblegen.objects.slot_task`)."""
+    from babblegen.objects import slot_task
+    from babblegen.tasks import get_task
+
+    return slot_task(get_task(config.task), config.world.objects, config.world.num_objects)
+
+
+def build_starts(config: RunConfig):
+    """The run's start sampler (`babblegen.starts.StartSampler`), drawing objects too when the run does; None with
+    fixed starts."""
+    from babblegen.objects import ObjectSampler
+    from babblegen.starts import StartSampler
+
+    w = config.world
+    if w.starts != "varied":
+        return None
+    objects = None if w.objects == "paper" else ObjectSampler(w.objects, w.num_objects, config.seed, w.object_ranges)
+    return StartSampler(build_task(config), config.seed, objects)
 
 
 def build_evaluator(task: Any, config: RunConfig, prepare=None, describe=None):

@@ -10,6 +10,7 @@ from pathlib import Path
 
 from babblegen.config import RERUN_FRAMES, VIDEO_CODECS, ConfigError, RunConfig, default_workers, load_toml, merge
 from babblegen.explorers.noveb import NovEBConfig
+from babblegen.objects import OBJECT_SETS
 from babblegen.world.settings import (
     CAMERA_PRESETS,
     START_MODES,
@@ -192,6 +193,27 @@ def build_parser() -> argparse.ArgumentParser:
         "as babblegen ran it before varied starts became the default) [default: varied]",
     )
     g.add_argument(
+        "--objects",
+        choices=OBJECT_SETS,
+        default=None,
+        help="which objects stand on the table: 'paper', the paper's gray box, can, blue box and ball every episode; "
+        "'varied', every new start draws its own (shape, size, mass, friction, restitution, colour; recorded per "
+        "episode as factors of variation); 'heldout', shapes and property bands no varied draw produces, for test "
+        "sets. varied and heldout need --starts varied [default: paper]",
+    )
+    g.add_argument(
+        "--num-objects",
+        type=int,
+        default=None,
+        metavar="N",
+        help="objects per start with --objects varied or heldout, 1 to 8 (paper: its 4) [default: 4]",
+    )
+    g.add_argument(
+        "--paper",
+        action="store_true",
+        help="the paper's configuration: --starts fixed --objects paper (the scene and search of the NovEB paper)",
+    )
+    g.add_argument(
         "--checkpoint-every",
         type=_positive("--checkpoint-every"),
         default=None,
@@ -248,6 +270,10 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _overrides(args: argparse.Namespace) -> dict:
+    if args.paper:
+        if args.starts == "varied" or args.objects not in (None, "paper"):
+            raise ConfigError("--paper is --starts fixed --objects paper; drop --starts/--objects or --paper")
+        args.starts, args.objects = "fixed", "paper"
     return {
         "task": args.task,
         "explorer": args.explorer,
@@ -276,7 +302,14 @@ def _overrides(args: argparse.Namespace) -> dict:
             "independent_share": args.independent_share,
             "start_from_end": args.start_from_end,
         },
-        "world": {"camera_width": args.width, "camera_height": args.height, "fps": args.fps, "starts": args.starts},
+        "world": {
+            "camera_width": args.width,
+            "camera_height": args.height,
+            "fps": args.fps,
+            "starts": args.starts,
+            "objects": args.objects,
+            "num_objects": args.num_objects,
+        },
     }
 
 

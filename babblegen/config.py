@@ -110,6 +110,12 @@ class RunConfig:
                 f"task {self.task!r} declares no start distribution (TaskSpec.starts), so it cannot vary its starts; "
                 "use --starts fixed"
             )
+        if self.world.objects != "paper":
+            if self.world.starts != "varied":
+                raise ConfigError(
+                    f"--objects {self.world.objects} draws each start's objects, so it needs --starts varied"
+                )
+            self._check_placement()
         self.descriptor = self.resolved_descriptor()  # stored as chosen
         n = self.noveb
         if n.k >= n.population:
@@ -131,6 +137,18 @@ class RunConfig:
             raise ConfigError(f"unknown rerun_frames {self.rerun_frames!r}; choose one of: {', '.join(RERUN_FRAMES)}")
         if self.video_codec not in VIDEO_CODECS:
             raise ConfigError(f"unknown video codec {self.video_codec!r}; choose one of: {', '.join(VIDEO_CODECS)}")
+
+
+    def _check_placement(self, starts: int = 20) -> None:
+        """Refuse drawn objects that the start regions cannot hold: the run's first starts are drawn here."""
+        from babblegen.assembly import build_starts
+
+        sampler = build_starts(self)
+        try:
+            for attempt in range(starts):
+                sampler.draw(attempt)
+        except ValueError as e:
+            raise ConfigError(str(e)) from None
 
 
 RESUME_MAY_CHANGE = (

@@ -28,6 +28,7 @@ from babblegen.exporters.sidecar import attempt_row, clone_row, read_attempts, r
 from babblegen.interrupts import Interrupted, Interrupts, StartupInterrupts
 from babblegen.outputs import RunOutputs
 from babblegen.provenance import machine, versions
+from babblegen.scene import ObjectSpec
 from babblegen.store import RUN_INFO, AttemptRecord, RunStore, atomic_write, read_run_info, sidecar_dir
 from babblegen.world.rollout import Command
 
@@ -96,7 +97,8 @@ def check_output(out: Path, resume: bool) -> None:
 
 def command_for(candidate) -> Command:
     start = None if candidate.start is None else candidate.start.placement
-    return Command(candidate.kind, np.asarray(candidate.genome, dtype=np.float64), start)
+    objects = None if candidate.start is None else candidate.start.objects
+    return Command(candidate.kind, np.asarray(candidate.genome, dtype=np.float64), start, objects)
 
 
 class Run:
@@ -132,12 +134,12 @@ class Run:
 
     # --- opening --------------------------------------------------------------------------------------------
     def _build_parts(self, check_interrupt: Callable[[], None]) -> None:
-        from babblegen.assembly import build_descriptor, build_evaluator, build_explorer
+        from babblegen.assembly import build_descriptor, build_evaluator, build_explorer, build_task
         from babblegen.evaluation import arm_info
-        from babblegen.tasks import get_robot, get_task
+        from babblegen.tasks import get_robot
 
         cfg = self.config
-        self.task = get_task(cfg.task)
+        self.task = build_task(cfg)
         self.robot = get_robot(self.task.robot_uid)
         arm = arm_info(self.task)
         self.joint_names = list(arm["joints"])
@@ -240,9 +242,12 @@ class Run:
         store.open_sinks(self._sinks(store.info()["repo_id"]), ckpt["sinks"])
         if self.explorer.starts is not None:  # the scenes committed movements left, as the sidecar recorded them
             names = self.task.object_names
+            drawn = self.config.world.objects != "paper"
             for row in read_attempts(self.out):
                 if row.get("feasible") and row.get("final_poses"):
-                    self.explorer.starts.record_end(row["attempt"], np.array([row["final_poses"][n] for n in names]))
+                    objects = tuple(ObjectSpec.from_factors(o) for o in row["objects"]) if drawn else None
+                    poses = np.array([row["final_poses"][n] for n in names])
+                    self.explorer.starts.record_end(row["attempt"], poses, objects)
         echo(
             f"resuming {self.out} at generation {self.counters['generations']} "
             f"({self.counters['attempts']} attempts, {self.counters['executed']} episodes)"
@@ -355,7 +360,8 @@ class Run:
         if starts is not None:
             for cand, rollout in zip(candidates, rollouts, strict=True):
                 if rollout.feasible:
-                    starts.record_end(cand.index, np.array(recorded_poses(rollout.final_poses)))
+                    objects = None if cand.start is None else cand.start.objects
+                    starts.record_end(cand.index, np.array(recorded_poses(rollout.final_poses)), objects)
 
     def _write_prepared(self, unwritten: deque, bar, wait: bool) -> None:
         """Write the attempts at the front of ``unwritten`` whose episodes are prepared (``wait``: all of them)."""
@@ -385,9 +391,7 @@ class Run:
             failures = int(rollout.timings.pop("worker_failures", 0))
             episode = c["executed"] if rollout.feasible else None
             descriptor_hex = None if code is None else self.descriptor.hex(code)
-            row = attempt_row(
-                cand, rollout, descriptor_hex, evaluation, episode, self.config.explorer, self.task.object_names
-            )
+            row = attempt_row(cand, rollout, descriptor_hex, evaluation, episode, self.config.explorer, self.task)
             row["timings"] = {k: round(v, 5) for k, v in rollout.timings.items()}
             row["timings"].update(descriptor=round(describe_s, 5), write=0.0, wait_for_batch=round(waited, 5))
             row["worker_failures"] = failures

@@ -12,11 +12,51 @@ import numpy as np
 
 from babblegen.world.collision import Box
 
+# The shapes an object may have. Sizes (metres): box = half extents (x, y, z); cylinder (upright) = (radius, half
+# height); sphere = (radius,); capsule (lying along x) = (radius, half length of its straight part); dumbbell (lying
+# along x) = (ball radius, bar radius, half distance between the balls' centres); ell and tee (flat, two bars) =
+# (half length of the bar along x, half length of the bar along y, half width of both bars, half height); hull = its
+# bounding box's half extents, the shape given by ``vertices`` (a convex hull, built by PhysX from the points).
+SHAPES = ("box", "cylinder", "sphere", "capsule", "dumbbell", "ell", "tee", "hull")
+
+
+@dataclass(frozen=True)
+class Part:
+    """One collision and visual primitive of an object, in the object's frame: ``kind`` is box (half extents),
+    cylinder (radius, half length; axis z), sphere (radius), capsule (radius, half length; axis x) or hull
+    (``vertices``)."""
+
+    kind: str
+    size: tuple[float, ...]
+    offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    vertices: tuple[tuple[float, float, float], ...] = ()
+
+    @property
+    def volume(self) -> float:
+        s = self.size
+        if self.kind == "box":
+            return 8 * s[0] * s[1] * s[2]
+        if self.kind == "cylinder":
+            return float(np.pi * s[0] ** 2 * 2 * s[1])
+        if self.kind == "sphere":
+            return float(4 / 3 * np.pi * s[0] ** 3)
+        if self.kind == "capsule":
+            return float(np.pi * s[0] ** 2 * 2 * s[1] + 4 / 3 * np.pi * s[0] ** 3)
+        return hull_volume(np.asarray(self.vertices))
+
+
+def hull_volume(points: np.ndarray) -> float:
+    """Volume of the convex hull of (n, 3) points."""
+    from scipy.spatial import ConvexHull
+
+    return float(ConvexHull(points).volume)
+
 
 @dataclass(frozen=True)
 class ObjectSpec:
-    """A free object resting on the table. Sizes: box = half extents, cylinder = (radius, half height),
-    sphere = (radius,). `xy` is where it rests; it is placed on the table top."""
+    """A free object resting on the table: shape and size (`SHAPES`), colour, mass (kg; its density is mass /
+    volume), its own material's static and dynamic friction and restitution, and ``xy``, where it rests in the task's
+    fixed scene. Every part of an object shares its density and material."""
 
     name: str
     shape: str
@@ -24,25 +64,117 @@ class ObjectSpec:
     color: tuple[float, float, float, float]
     mass: float
     xy: tuple[float, float]
+    # PhysX's default material, which the paper's objects share with the table and the robot
+    static_friction: float = 0.3
+    dynamic_friction: float = 0.3
+    restitution: float = 0.0
+    vertices: tuple[tuple[float, float, float], ...] = ()  # a hull's points, centred on its bounding box
+
+    def __post_init__(self) -> None:
+        if self.shape not in SHAPES:
+            raise ValueError(f"unknown object shape {self.shape!r}; known: {', '.join(SHAPES)}")
+        if not all(v > 0 for v in self.size) or not self.mass > 0:
+            raise ValueError(f"object {self.name!r}: sizes and mass must be > 0, got {self.size} and {self.mass}")
+        if min(self.static_friction, self.dynamic_friction, self.restitution) < 0:
+            raise ValueError(f"object {self.name!r}: frictions and restitution must be >= 0")
+
+    def parts(self) -> tuple[Part, ...]:
+        """The primitives the object is built from, in its own frame (origin: its bounding box's centre)."""
+        s = self.size
+        if self.shape in ("box", "cylinder", "sphere", "capsule"):
+            return (Part(self.shape, tuple(s)),)
+        if self.shape == "hull":
+            return (Part("hull", tuple(s), vertices=self.vertices),)
+        if self.shape == "dumbbell":
+            ball, bar, half = s
+            return (
+                Part("sphere", (ball,), (-half, 0.0, 0.0)),
+                Part("sphere", (ball,), (half, 0.0, 0.0)),
+                Part("capsule", (bar, max(half - ball, 1e-3)), (0.0, 0.0, 0.0)),
+            )
+        lx, ly, w, h = s  # ell, tee: a bar along x and one along y, touching, not overlapping
+        y_bar = ly + w
+        if self.shape == "ell":
+            parts = [((lx, w, h), (0.0, 0.0)), ((w, ly, h), (lx - w, y_bar))]
+            low, high = np.array([-lx, -w]), np.array([lx, y_bar + ly])
+        else:
+            parts = [((lx, w, h), (0.0, 0.0)), ((w, ly, h), (0.0, y_bar))]
+            low, high = np.array([-lx, -w]), np.array([lx, y_bar + ly])
+        centre = (low + high) / 2
+        return tuple(Part("box", half, (float(x - centre[0]), float(y - centre[1]), 0.0)) for half, (x, y) in parts)
 
     @property
     def half_height(self) -> float:
-        return {"box": lambda s: s[2], "cylinder": lambda s: s[1], "sphere": lambda s: s[0]}[self.shape](self.size)
+        """Height of the object's origin above the table when it rests upright."""
+        s = self.size
+        if self.shape in ("sphere", "capsule", "dumbbell"):
+            return float(s[0])
+        if self.shape == "ell" or self.shape == "tee":
+            return float(s[3])
+        return float(s[1] if self.shape == "cylinder" else s[2])
 
     @property
     def footprint_radius(self) -> float:
         """Radius of the smallest upright circle around the object's horizontal extent, whatever its yaw."""
         s = self.size
-        return float(np.hypot(s[0], s[1])) if self.shape == "box" else float(s[0])
+        if self.shape in ("cylinder", "sphere"):
+            return float(s[0])
+        if self.shape == "capsule":
+            return float(s[0] + s[1])
+        if self.shape == "dumbbell":
+            return float(s[0] + s[2])
+        if self.shape == "hull":
+            return float(np.max(np.hypot(*np.asarray(self.vertices)[:, :2].T)))
+        if self.shape in ("ell", "tee"):
+            corners = []
+            for part in self.parts():
+                for sx in (-1, 1):
+                    for sy in (-1, 1):
+                        corners.append((part.offset[0] + sx * part.size[0], part.offset[1] + sy * part.size[1]))
+            return float(np.max(np.hypot(*np.asarray(corners).T)))
+        return float(np.hypot(s[0], s[1]))
 
     @property
     def volume(self) -> float:
-        s = self.size
-        return {
-            "box": lambda: 8 * s[0] * s[1] * s[2],
-            "cylinder": lambda: np.pi * s[0] ** 2 * 2 * s[1],
-            "sphere": lambda: 4 / 3 * np.pi * s[0] ** 3,
-        }[self.shape]()
+        """The sum of the parts' volumes, as PhysX gives each part its mass (parts of a dumbbell overlap a little)."""
+        return float(sum(part.volume for part in self.parts()))
+
+    @property
+    def density(self) -> float:
+        return self.mass / self.volume
+
+    def factors(self) -> dict:
+        """The object's factors of variation, as a sidecar row and the episode table record them."""
+        out = {
+            "name": self.name,
+            "shape": self.shape,
+            "size": [float(v) for v in self.size],
+            "mass": float(self.mass),
+            "density": round(self.density, 6),
+            "static_friction": float(self.static_friction),
+            "dynamic_friction": float(self.dynamic_friction),
+            "restitution": float(self.restitution),
+            "color": [float(v) for v in self.color],
+        }
+        if self.vertices:
+            out["vertices"] = [list(v) for v in self.vertices]
+        return out
+
+    @classmethod
+    def from_factors(cls, data: dict, xy: tuple[float, float] = (0.0, 0.0)) -> ObjectSpec:
+        """`factors`' inverse (the values exactly as stored)."""
+        return cls(
+            data["name"],
+            data["shape"],
+            tuple(data["size"]),
+            tuple(data["color"]),
+            data["mass"],
+            xy,
+            data["static_friction"],
+            data["dynamic_friction"],
+            data["restitution"],
+            tuple(tuple(v) for v in data.get("vertices", ())),
+        )
 
 
 @dataclass(frozen=True)

@@ -14,13 +14,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from babblegen.scene import TaskSpec
+from babblegen.objects import ObjectSampler
+from babblegen.scene import ObjectSpec, TaskSpec
 from babblegen.world.settings import START_MODES
 
 __all__ = ["NEW_START", "START_MODES", "Start", "StartDraw", "StartSampler", "layout_poses", "yaw_quaternion"]
 
 _STREAM = 0x5747A  # the start draws' own random stream, apart from the explorer's and the rollouts'
 _MAX_TRIES = 10_000
+_MAX_LAYOUTS = 20
 
 
 @dataclass
@@ -29,19 +31,26 @@ class Start:
     drawn for; ``origin`` how: "drawn" whole (`StartSampler.draw` rebuilds it from the index and the run seed),
     "moved", one object of a parent's start moved (`StartSampler.move_one`), or "made", the scene an earlier
     attempt's movement left (`StartSampler.made`): then ``poses`` holds every object's whole pose (n_objects, 7:
-    x, y, z, qw, qx, qy, qz; a toppled can stays toppled) and ``made_from`` that attempt's index."""
+    x, y, z, qw, qx, qy, qz; a toppled can stays toppled) and ``made_from`` that attempt's index. ``objects``: the
+    objects a varied or held-out object set drew for the start (`babblegen.objects`), one per slot; None: the task's."""
 
     layout: np.ndarray
     drawn_at: int
     origin: str = "drawn"
     poses: np.ndarray | None = None
     made_from: int | None = None
+    objects: tuple[ObjectSpec, ...] | None = None
 
     def key(self) -> bytes:
-        """What identifies the start in a genome's identity: the exact layout, or the exact poses of a made one."""
+        """What identifies the start in a genome's identity: the exact layout, or the exact poses of a made one,
+        and its objects when they were drawn."""
         if self.poses is not None:
-            return b"made" + np.ascontiguousarray(self.poses, dtype=np.float64).tobytes()
-        return np.ascontiguousarray(self.layout, dtype=np.float64).tobytes()
+            key = b"made" + np.ascontiguousarray(self.poses, dtype=np.float64).tobytes()
+        else:
+            key = np.ascontiguousarray(self.layout, dtype=np.float64).tobytes()
+        if self.objects is not None:
+            key += b"objects" + repr([o.factors() for o in self.objects]).encode()
+        return key
 
     @property
     def placement(self) -> np.ndarray:
@@ -52,6 +61,8 @@ class Start:
         out = {"layout": np.asarray(self.layout).tolist(), "drawn_at": int(self.drawn_at), "origin": self.origin}
         if self.poses is not None:
             out.update(poses=np.asarray(self.poses).tolist(), made_from=int(self.made_from))
+        if self.objects is not None:
+            out["objects"] = [o.factors() for o in self.objects]
         return out
 
     @classmethod
@@ -61,7 +72,9 @@ class Start:
         layout = np.asarray(data["layout"], dtype=np.float64).reshape(-1, 3)
         poses = data.get("poses")
         poses = None if poses is None else np.asarray(poses, dtype=np.float64).reshape(-1, 7)
-        return cls(layout, int(data["drawn_at"]), data.get("origin", "drawn"), poses, data.get("made_from"))
+        objects = data.get("objects")
+        objects = None if objects is None else tuple(ObjectSpec.from_factors(o) for o in objects)
+        return cls(layout, int(data["drawn_at"]), data.get("origin", "drawn"), poses, data.get("made_from"), objects)
 
 
 @dataclass(frozen=True)
@@ -94,21 +107,25 @@ def _yaw(q: np.ndarray) -> np.ndarray:
     return np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
 
 
-def layout_poses(task: TaskSpec, layout: np.ndarray) -> np.ndarray:
-    """(n_objects, 7) poses (x, y, z, qw, qx, qy, qz) of a layout: each object resting on the table top."""
+def layout_poses(task: TaskSpec, layout: np.ndarray, objects: tuple[ObjectSpec, ...] | None = None) -> np.ndarray:
+    """(n_objects, 7) poses (x, y, z, qw, qx, qy, qz) of a layout: each object (the task's, or ``objects``) resting
+    on the table top."""
     layout = np.asarray(layout, dtype=np.float64)
-    z = np.array([task.table_top + o.half_height for o in task.objects])
+    z = np.array([task.table_top + o.half_height for o in (task.objects if objects is None else objects)])
     return np.concatenate([layout[:, :2], z[:, None], yaw_quaternion(layout[:, 2])], axis=1)
 
 
 class StartSampler:
-    """Draws a task's varied starts for a run seed: ``draw(attempt)`` is a function of (seed, attempt) alone."""
+    """Draws a task's varied starts for a run seed: ``draw(attempt)`` is a function of (seed, attempt) alone. With an
+    ``objects`` sampler every drawn start also draws its objects (`babblegen.objects`), and places them by their own
+    footprints; a moved or made start keeps its parent's objects."""
 
-    def __init__(self, task: TaskSpec, seed: int):
+    def __init__(self, task: TaskSpec, seed: int, objects: ObjectSampler | None = None):
         if task.starts is None:
             raise ValueError(f"task {task.name!r} declares no start distribution (TaskSpec.starts)")
-        self.task, self.seed = task, int(seed)
+        self.task, self.seed, self.objects = task, int(seed), objects
         self.ends: dict[int, np.ndarray] = {}  # attempt -> the objects' poses its movement left (`record_end`)
+        self.end_objects: dict[int, tuple[ObjectSpec, ...] | None] = {}  # attempt -> the objects it ran with
         self.radius = np.array([o.footprint_radius for o in task.objects])
         t = task.table
         self._table = (t.center[0] - t.half_extents[0], t.center[0] + t.half_extents[0],
@@ -116,22 +133,36 @@ class StartSampler:
 
     def draw(self, attempt: int) -> Start:
         rng = np.random.default_rng([self.seed, _STREAM, int(attempt)])
-        return Start(self.layout(rng), int(attempt))
+        if self.objects is None:
+            return Start(self.layout(rng), int(attempt))
+        objects = self.objects.draw(attempt)
+        radius = np.array([o.footprint_radius for o in objects])
+        return Start(self.layout(rng, radius), int(attempt), objects=objects)
 
     def move_one(self, parent: Start, attempt: int) -> Start:
         """The parent's layout with one object, drawn uniformly, placed anew in its region (the others stay)."""
         rng = np.random.default_rng([self.seed, _STREAM, int(attempt)])
         layout = np.array(parent.layout, dtype=np.float64)
+        radius = self._radius(parent.objects)
         i = int(rng.integers(len(layout)))
         others = np.ones(len(layout), dtype=bool)
         others[i] = False
-        layout[i] = self._place(i, layout[others], self.radius[others], rng)
-        return Start(layout, int(attempt), "moved")
+        spot = self._place(i, layout[others], radius[others], rng, radius)
+        if spot is None:  # no room for it elsewhere: a whole new layout of the same objects
+            spot_layout = self.layout(rng, radius)
+            return Start(spot_layout, int(attempt), "moved", objects=parent.objects)
+        layout[i] = spot
+        return Start(layout, int(attempt), "moved", objects=parent.objects)
 
-    def record_end(self, attempt: int, poses: np.ndarray) -> None:
+    def _radius(self, objects: tuple[ObjectSpec, ...] | None) -> np.ndarray:
+        return self.radius if objects is None else np.array([o.footprint_radius for o in objects])
+
+    def record_end(self, attempt: int, poses: np.ndarray, objects: tuple[ObjectSpec, ...] | None = None) -> None:
         """The objects' final poses (n_objects, 7) of an executed attempt, exactly as its sidecar row records them
-        (`babblegen.exporters.sidecar.recorded_poses`): a resumed run reads them back from there."""
+        (`babblegen.exporters.sidecar.recorded_poses`), and the objects it ran with: a resumed run reads them back
+        from there."""
         self.ends[int(attempt)] = np.array(poses, dtype=np.float64)
+        self.end_objects[int(attempt)] = objects
 
     def made(self, made_from: int, attempt: int) -> Start:
         """The scene attempt ``made_from`` left, as the start of ``attempt``; a whole new layout for it when that
@@ -140,7 +171,8 @@ class StartSampler:
         if poses is None or not self.on_table(poses):
             return self.draw(attempt)
         layout = np.column_stack([poses[:, :2], _yaw(poses[:, 3:])])
-        return Start(layout, int(attempt), "made", poses.copy(), int(made_from))
+        objects = self.end_objects.get(int(made_from))
+        return Start(layout, int(attempt), "made", poses.copy(), int(made_from), objects)
 
     def on_table(self, poses: np.ndarray) -> bool:
         """Every object above the table top (not fallen), its centre over the table."""
@@ -148,28 +180,39 @@ class StartSampler:
         x, y, z = poses[:, 0], poses[:, 1], poses[:, 2]
         return bool(np.all((x > x0) & (x < x1) & (y > y0) & (y < y1) & (z > self.task.table_top)))
 
-    def layout(self, rng: np.random.Generator) -> np.ndarray:
-        """Objects placed in turn, each redrawn until it keeps its distances (`StartDistribution`)."""
-        placed = np.zeros((len(self.radius), 3))
-        for i in range(len(placed)):
-            placed[i] = self._place(i, placed[:i], self.radius[:i], rng)
-        return placed
-
-    def _place(self, i: int, others: np.ndarray, radii: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-        """(x, y, yaw) of object ``i`` in its region, drawn until it keeps its distances from ``others``."""
-        dist = self.task.starts
-        region = dist.regions[i]
-        for _ in range(_MAX_TRIES):
-            x, y, yaw = rng.uniform(*region.x), rng.uniform(*region.y), rng.uniform(*region.yaw)
-            if self._fits(i, x, y, others, radii, dist.gap):
-                return np.array([x, y, yaw])
+    def layout(self, rng: np.random.Generator, radius: np.ndarray | None = None) -> np.ndarray:
+        """Objects (of footprint radii ``radius``: the task's by default) placed in turn, each redrawn until it
+        keeps its distances (`StartDistribution`)."""
+        radius = self.radius if radius is None else radius
+        for _ in range(_MAX_LAYOUTS):  # objects placed early may leave no room for a later one: start again
+            placed = np.zeros((len(radius), 3))
+            for i in range(len(placed)):
+                spot = self._place(i, placed[:i], radius[:i], rng, radius)
+                if spot is None:
+                    break
+                placed[i] = spot
+            else:
+                return placed
         raise ValueError(
             f"task {self.task.name!r}: no place for {self.task.objects[i].name!r} in its start region "
-            f"after {_MAX_TRIES} draws; widen the region or lower the gap"
+            f"in {_MAX_LAYOUTS} layouts; widen the region, lower the gap, or use fewer or smaller objects"
         )
 
-    def _fits(self, i: int, x: float, y: float, others: np.ndarray, radii: np.ndarray, gap: float) -> bool:
-        r = self.radius[i]
+    def _place(
+        self, i: int, others: np.ndarray, radii: np.ndarray, rng: np.random.Generator, radius: np.ndarray | None = None
+    ) -> np.ndarray | None:
+        """(x, y, yaw) of object ``i`` in its region, drawn until it keeps its distances from ``others`` (None when no
+        draw in `_MAX_TRIES` does)."""
+        dist = self.task.starts
+        region = dist.regions[i]
+        r = float((self.radius if radius is None else radius)[i])
+        for _ in range(_MAX_TRIES):
+            x, y, yaw = rng.uniform(*region.x), rng.uniform(*region.y), rng.uniform(*region.yaw)
+            if self._fits(r, x, y, others, radii, dist.gap):
+                return np.array([x, y, yaw])
+        return None
+
+    def _fits(self, r: float, x: float, y: float, others: np.ndarray, radii: np.ndarray, gap: float) -> bool:
         x0, x1, y0, y1 = self._table
         if not (x0 + r + gap <= x <= x1 - r - gap and y0 + r + gap <= y <= y1 - r - gap):
             return False

@@ -18,6 +18,7 @@ import numpy as np
 from babblegen.config import ConfigError, RunConfig
 from babblegen.exporters.sidecar import ATTEMPTS, read_attempts, read_run_info, sidecar_dir
 from babblegen.provenance import differences_from_here
+from babblegen.scene import ObjectSpec
 from babblegen.world.rollout import Command
 
 # dataset column -> the recorded frames' field it must equal
@@ -119,12 +120,16 @@ def fingerprint_line(recorded: dict | None, here: str) -> str:
 
 
 def command_of(row: dict) -> Command:
-    """The command an attempt ran, rebuilt from its sidecar row: its genome, and its varied start's layout (the
-    poses of a made start)."""
+    """The command an attempt ran, rebuilt from its sidecar row: its genome, its varied start's layout (the poses of
+    a made start) and the objects it started with (rows made before objects were recorded: the task's)."""
     start = row.get("start") or {}
     placement = start.get("poses", start.get("layout"))  # a made start's poses, else a drawn layout
+    objects = row.get("objects")
     return Command(
-        row["kind"], np.asarray(row["genome"], dtype=np.float64), None if placement is None else np.asarray(placement)
+        row["kind"],
+        np.asarray(row["genome"], dtype=np.float64),
+        None if placement is None else np.asarray(placement),
+        None if objects is None else tuple(ObjectSpec.from_factors(o) for o in objects),
     )
 
 

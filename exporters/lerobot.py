@@ -64,7 +64,7 @@ class SegmentWriter:
         recorded = (meta.features[HEAD].get("info") or {}).get("video.codec")
         if recorded is not None and VIDEO_CODECS_ALIASES.get(recorded, recorded) != base_codec(codec):
             raise ValueError(f"{root} holds {recorded} video; it cannot take episodes encoded with {codec}")
-        self.pending: list[tuple[EncodedEpisode, str]] = []
+        self.pending: list[tuple[EncodedEpisode, str, dict]] = []
         self.total_frames = meta.total_frames
         last = None if meta.episodes is None or len(meta.episodes) == 0 else meta.episodes[-1]
         self.next_file: dict[str, tuple[int, int]] = {}
@@ -101,10 +101,11 @@ class SegmentWriter:
     def num_episodes(self) -> int:
         return self.meta.total_episodes + len(self.pending)
 
-    def add(self, episode: EncodedEpisode, task: str) -> int:
-        """Queue one episode; returns its episode index."""
+    def add(self, episode: EncodedEpisode, task: str, columns: dict | None = None) -> int:
+        """Queue one episode, with ``columns`` of its own for the episode table (`object_columns`); returns its
+        episode index."""
         index = self.num_episodes
-        self.pending.append((episode, task))
+        self.pending.append((episode, task, columns or {}))
         if len(self.pending) >= MAX_SEGMENT_EPISODES:
             self.flush()
         return index
@@ -113,8 +114,8 @@ class SegmentWriter:
         """Write the pending episodes as one segment (new data, video and episode-metadata files)."""
         if not self.pending:
             return
-        meta, episodes = self.meta, [e for e, _ in self.pending]
-        tasks = [t for _, t in self.pending]
+        meta, episodes = self.meta, [e for e, _, _ in self.pending]
+        tasks = [t for _, t, _ in self.pending]
         new_tasks = [t for t in dict.fromkeys(tasks) if meta.tasks is None or meta.get_task_index(t) is None]
         if new_tasks:
             meta.save_episode_tasks(new_tasks)
@@ -131,22 +132,28 @@ class SegmentWriter:
         ]
         self._write_data(episodes, positions, self.next_file["data"])
         video_starts = self._write_video(episodes, self.next_file["video"])
-        stats = self._write_episode_table(episodes, tasks, positions, video_starts)
+        extra = [c for _, _, c in self.pending]
+        stats = self._write_episode_table(episodes, tasks, positions, video_starts, extra)
         self._write_info_and_stats(episodes, stats, first_episode == 0)
         self.total_frames += sum(lengths)
         self.pending.clear()
         self._advance()
 
     def _write_episode_table(
-        self, episodes: list[EncodedEpisode], tasks: list[str], positions: list[dict], video_starts: list[float]
+        self,
+        episodes: list[EncodedEpisode],
+        tasks: list[str],
+        positions: list[dict],
+        video_starts: list[float],
+        extra: list[dict],
     ) -> list[dict]:
-        """The segment's rows of LeRobot's episode table (same columns, same order); returns each episode's
-        complete statistics."""
+        """The segment's rows of LeRobot's episode table (same columns, same order, then each episode's own
+        ``extra`` columns); returns each episode's complete statistics."""
         from lerobot.datasets.utils import DEFAULT_EPISODES_PATH, flatten_dict
 
         (data_chunk, data_file), (video_chunk, video_file) = self.next_file["data"], self.next_file["video"]
         rows, all_stats = [], []
-        for episode, task, pos, video_start in zip(episodes, tasks, positions, video_starts, strict=True):
+        for episode, task, pos, video_start, own in zip(episodes, tasks, positions, video_starts, extra, strict=True):
             stats = {**episode.stats, **numeric_stats(pos, self.meta.features)}
             all_stats.append(stats)
             row = {
@@ -165,6 +172,7 @@ class SegmentWriter:
                 row[f"videos/{key}/to_timestamp"] = video_start + episode.duration_s
             row.update(flatten_dict({"stats": stats}))
             row["meta/episodes/chunk_index"], row["meta/episodes/file_index"] = self.next_file["episodes"]
+            row.update(own)
             rows.append(row)
         chunk, file = self.next_file["episodes"]
         _write_parquet_rows(rows, self.root / DEFAULT_EPISODES_PATH.format(chunk_index=chunk, file_index=file))
@@ -303,7 +311,7 @@ class LeRobotSink(Sink):
         if encoded is None:  # encoded here when no worker did
             writer = self.writer
             encoded = encode_episode(record.rollout.frames, writer.meta.fps, writer.features, writer.codec)
-        index = self.writer.add(encoded, self.task_text)
+        index = self.writer.add(encoded, self.task_text, object_columns(record.row.get("objects") or []))
         record.row["timings"]["write"] = round(time.perf_counter() - t, 5)
         if index != expected:
             raise RuntimeError(f"the dataset holds {index} episodes where the run expected {expected}")
@@ -314,6 +322,15 @@ class LeRobotSink(Sink):
 
     def close(self) -> None:
         self.writer.flush()
+
+
+FACTORS = ("shape", "size", "mass", "density", "static_friction", "dynamic_friction", "restitution", "color")
+
+
+def object_columns(objects: list[dict]) -> dict:
+    """An episode's objects (a sidecar row's ``objects``) as columns of the episode table:
+    ``objects/<slot>/<factor>`` for every factor of `FACTORS` (a hull's points stay in the sidecar)."""
+    return {f"objects/{o['name']}/{factor}": o[factor] for o in objects for factor in FACTORS}
 
 
 def snapshot(root: Path) -> dict:

@@ -109,9 +109,11 @@ def attempt_row(
     evaluation: Any,
     episode: int | None,
     explorer: str,
-    object_names: list[str],
+    task: Any,
 ) -> dict[str, Any]:
-    """The sidecar row of one attempted movement (fields documented in docs/dataset.md, "The sidecar table")."""
+    """The sidecar row of one attempted movement (fields documented in docs/dataset.md, "The sidecar table");
+    ``task`` is the run's (`babblegen.assembly.build_task`)."""
+    object_names = task.object_names
     row: dict[str, Any] = {
         "attempt": cand.index,
         "generation": cand.generation,
@@ -128,6 +130,7 @@ def attempt_row(
         "ee_targets": None if rollout.ee_targets is None else np.round(rollout.ee_targets, 5).tolist(),
         "planner": rollout.planner,
         "start": start_entry(cand),
+        "objects": start_objects(cand, task),
     }
     if rollout.feasible:
         names = object_names
@@ -142,6 +145,14 @@ def attempt_row(
             final_ee_pos=_final_tool_point(rollout),
         )
     return row
+
+
+def start_objects(item: Any, task: Any) -> list[dict[str, Any]]:
+    """The objects an attempt started with, one per slot, as factors of variation (`ObjectSpec.factors`): those its
+    start drew, or the task's own."""
+    start = item.start
+    objects = task.objects if start is None or start.objects is None else start.objects
+    return [o.factors() for o in objects]
 
 
 def recorded_poses(poses: np.ndarray) -> list[list[float]]:

@@ -5,16 +5,19 @@ Scene modules subclass `TabletopEnv`, set `task_spec`, and register with `@regis
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import sapien
 import torch
 from mani_skill.envs.sapien_env import BaseEnv
 from mani_skill.sensors.camera import CameraConfig
 from mani_skill.utils import sapien_utils
+from mani_skill.utils.building.actor_builder import ActorBuilder
 from mani_skill.utils.structs import Pose
 from mani_skill.utils.structs.types import SceneConfig, SimConfig
 
-from babblegen.scene import ObjectSpec, TaskSpec
+from babblegen.scene import ObjectSpec, Part, TaskSpec
 from babblegen.world.collision import Box
 
 # A URDF/SAPIEN cylinder's axis is x; this turns it upright.
@@ -24,6 +27,68 @@ OBSTACLE_COLOR = [0.55, 0.6, 0.72, 1.0]  # static obstacles (TaskSpec.extra_obst
 # pitched 25 degrees down towards it.
 WRIST_CAMERA_OFFSET = [-0.12, 0.0, 0.06]
 WRIST_CAMERA_TILT = [float(np.cos(0.2182)), 0.0, float(np.sin(0.2182)), 0.0]
+DEFAULT_MATERIAL = (0.3, 0.3, 0.0)  # PhysX's default material in SAPIEN: static, dynamic friction, restitution
+
+
+class ObjectBuilder(ActorBuilder):
+    """ManiSkill's actor builder, which also takes convex hulls made from points (``hulls``, `_add_hull`). SAPIEN's
+    builder takes hulls only from mesh files, which it caches by path for the life of the process."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.hulls: list = []
+
+    def build_physx_component(self, link_parent=None):
+        component = super().build_physx_component(link_parent)
+        for shape in self.hulls:
+            shape.set_collision_groups(self.collision_groups)
+            component.attach(shape)
+        return component
+
+
+def _add_hull(builder: ObjectBuilder, part: Part, density: float, physical, mat) -> None:
+    """A convex hull PhysX makes from the part's points, and its visual: the hull PhysX made (flat shaded), so what
+    is seen is what collides."""
+    shape = sapien.physx.PhysxCollisionShapeConvexMesh(
+        vertices=np.asarray(part.vertices, dtype=np.float32), scale=np.ones(3, np.float32), material=physical
+    )
+    shape.local_pose = sapien.Pose(p=list(part.offset))
+    shape.set_density(density)
+    builder.hulls.append(shape)
+    vertices = np.asarray(shape.get_vertices(), dtype=np.float32)
+    corners = vertices[np.asarray(shape.get_triangles(), dtype=np.int64)].reshape(-1, 3)
+    normal = np.cross(corners[1::3] - corners[0::3], corners[2::3] - corners[0::3])
+    normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-12)
+    triangles = np.arange(len(corners), dtype=np.uint32).reshape(-1, 3)
+    normals = np.repeat(normal, 3, axis=0).astype(np.float32)
+    uvs = np.zeros((len(corners), 2), np.float32)
+    visual = sapien.render.RenderShapeTriangleMesh(corners, triangles, normals, uvs, mat)
+    visual.local_pose = sapien.Pose(p=list(part.offset))
+    builder._procedural_shapes.append(visual)
+
+
+def _add_part(builder, part: Part, density: float, physical, mat) -> None:
+    """One part's collision shape (of ``density`` and material ``physical``, None: the default) and its visual."""
+    pose = sapien.Pose(p=list(part.offset))
+    kw = {"density": density} if physical is None else {"density": density, "material": physical}
+    s = part.size
+    if part.kind == "box":
+        builder.add_box_collision(pose=pose, half_size=list(s), **kw)
+        builder.add_box_visual(pose=pose, half_size=list(s), material=mat)
+    elif part.kind == "cylinder":
+        pose = sapien.Pose(p=list(part.offset), q=_UPRIGHT)
+        builder.add_cylinder_collision(pose=pose, radius=s[0], half_length=s[1], **kw)
+        builder.add_cylinder_visual(pose=pose, radius=s[0], half_length=s[1], material=mat)
+    elif part.kind == "sphere":
+        builder.add_sphere_collision(pose=pose, radius=s[0], **kw)
+        builder.add_sphere_visual(pose=pose, radius=s[0], material=mat)
+    elif part.kind == "capsule":
+        builder.add_capsule_collision(pose=pose, radius=s[0], half_length=s[1], **kw)
+        builder.add_capsule_visual(pose=pose, radius=s[0], half_length=s[1], material=mat)
+    elif part.kind == "hull":
+        _add_hull(builder, part, density, physical or sapien.physx.get_default_material(), mat)
+    else:
+        raise ValueError(f"unknown part kind {part.kind!r}")
 
 
 class TabletopEnv(BaseEnv):
@@ -43,6 +108,7 @@ class TabletopEnv(BaseEnv):
         sim_freq: int = 100,
         control_freq: int = 20,
         pcm: bool = False,
+        object_specs: tuple[ObjectSpec, ...] | None = None,
         **kwargs,
     ):
         from babblegen.world.settings import CAMERA_PRESETS
@@ -51,6 +117,9 @@ class TabletopEnv(BaseEnv):
         self.cameras = tuple(cameras) if cameras else (CAMERA_PRESETS["head"],)
         self._sim_freq, self._control_freq, self._pcm = sim_freq, control_freq, pcm
         self.objects: dict[str, object] = {}
+        # what stands on the table now: the task's objects, or the run's slots (babblegen.objects.slot_task)
+        self.object_specs: tuple[ObjectSpec, ...] = tuple(object_specs or self.task_spec.objects)
+        self._slot_xy = {o.name: o.xy for o in self.object_specs}  # where a slot's object rests before its start
         super().__init__(*args, robot_uids=robot_uids or self.task_spec.robot_uid, **kwargs)
 
     @property
@@ -112,8 +181,9 @@ class TabletopEnv(BaseEnv):
         floor.initial_pose = sapien.Pose(p=[0, 0, -0.01])
         self.floor = floor.build_static(name="floor")
         self.obstacles = [self._build_obstacle(box) for box in spec.extra_obstacles]
-        for obj in spec.objects:
-            self.objects[obj.name] = self._build_object(obj)
+        # a start's own objects (``reset(options={"objects": ...})``, one per slot), else those of the last build
+        self.object_specs = tuple(options.get("objects") or self.object_specs)
+        self.objects = {obj.name: self._build_object(obj) for obj in self.object_specs}
 
     def _build_obstacle(self, box: Box):
         """A static box that is also a planning obstacle (TaskSpec.extra_obstacles): walls, shelves."""
@@ -128,30 +198,30 @@ class TabletopEnv(BaseEnv):
         return builder.build_static(name=box.name)
 
     def _build_object(self, obj: ObjectSpec):
-        builder = self.scene.create_actor_builder()
+        """One free object from its parts (`ObjectSpec.parts`), all of its density. The paper's objects keep the
+        simulator's default material, as they always did; any other gets a material of its own (the default one
+        is shared with the table and the robot)."""
+        builder = ObjectBuilder().set_scene(self.scene) if obj.shape == "hull" else self.scene.create_actor_builder()
         mat = sapien.render.RenderMaterial(base_color=list(obj.color))
         density = obj.mass / obj.volume
-        if obj.shape == "box":
-            builder.add_box_collision(half_size=list(obj.size), density=density)
-            builder.add_box_visual(half_size=list(obj.size), material=mat)
-        elif obj.shape == "cylinder":
-            pose = sapien.Pose(q=_UPRIGHT)
-            builder.add_cylinder_collision(pose=pose, radius=obj.size[0], half_length=obj.size[1], density=density)
-            builder.add_cylinder_visual(pose=pose, radius=obj.size[0], half_length=obj.size[1], material=mat)
-        elif obj.shape == "sphere":
-            builder.add_sphere_collision(radius=obj.size[0], density=density)
-            builder.add_sphere_visual(radius=obj.size[0], material=mat)
-        else:
-            raise ValueError(f"unknown object shape {obj.shape!r}")
-        rest = self.task_spec.rest_pose(obj)
+        physical = None
+        if (obj.static_friction, obj.dynamic_friction, obj.restitution) != DEFAULT_MATERIAL:
+            physical = sapien.physx.PhysxMaterial(obj.static_friction, obj.dynamic_friction, obj.restitution)
+        for part in obj.parts():
+            _add_part(builder, part, density, physical, mat)
+        rest = self._rest_pose(obj)
         builder.initial_pose = sapien.Pose(p=list(rest[:3]), q=list(rest[3:]))
         return builder.build(name=obj.name)
+
+    def _rest_pose(self, obj: ObjectSpec) -> tuple[float, ...]:
+        """The object upright on the table where its slot's object rests in the task (the world then places it)."""
+        return self.task_spec.rest_pose(replace(obj, xy=self._slot_xy.get(obj.name, obj.xy)))
 
     def _initialize_episode(self, env_idx: torch.Tensor, options: dict):
         with torch.device(self.device):
             self.agent.reset(torch.as_tensor(self.agent.keyframes["home"].qpos, dtype=torch.float32)[None])
-            for obj in self.task_spec.objects:
-                rest = torch.tensor(self.task_spec.rest_pose(obj), dtype=torch.float32)[None]
+            for obj in self.object_specs:
+                rest = torch.tensor(self._rest_pose(obj), dtype=torch.float32)[None]
                 self.objects[obj.name].set_pose(Pose.create_from_pq(p=rest[:, :3], q=rest[:, 3:]))
 
     def evaluate(self):

@@ -29,6 +29,8 @@ class Command:
     # a varied start (babblegen.starts): (n_objects, 3) x, y, yaw, or (n_objects, 7) whole poses of a made start;
     # None: the task's
     start: np.ndarray | None = None
+    # the start's own objects, one per slot, when its object set draws them (babblegen.objects); None: the task's
+    objects: tuple | None = None
 
 
 @dataclass

@@ -5,6 +5,8 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, field, replace
 from typing import Any
 
+from babblegen.objects import ObjectRanges, check_object_set
+
 MAX_CAMERA_SIDE = 2048  # pixels: larger frames exhaust the CPU renderer and the video encoder
 MOUNTS = ("head", "fixed", "wrist")
 MODALITIES = ("depth", "segmentation")
@@ -102,12 +104,21 @@ class WorldSettings:
     # (docs/world_model.md), or "fixed" (the paper's scene, every time)
     starts: str = "varied"
     start_settle_seconds: float = 2.0  # a varied start settles until at rest, at most this long (else not used)
+    # which objects stand on the table (babblegen.objects): "paper" (the task's own, every episode), "varied" (drawn
+    # per start: shape, size, mass, friction, restitution, colour) or "heldout" (shapes and property bands no varied
+    # draw produces: test sets); how many (the task's four for "paper", 1 to 8 otherwise); what varied draws from
+    objects: str = "paper"
+    num_objects: int = 4
+    object_ranges: ObjectRanges = field(default_factory=ObjectRanges)
     # what is recorded: the head camera (the behaviour camera, always) and any others, each with its modalities
     cameras: tuple[CameraView, ...] = field(default_factory=lambda: default_cameras())
 
     def __post_init__(self):
         views = tuple(v if isinstance(v, CameraView) else CameraView(**dict(v)) for v in self.cameras)
         object.__setattr__(self, "cameras", views)
+        if not isinstance(self.object_ranges, ObjectRanges):
+            object.__setattr__(self, "object_ranges", ObjectRanges(**dict(self.object_ranges)))
+        check_object_set(self.objects, self.num_objects)
         names = [v.name for v in views]
         if "head" not in names:
             raise ValueError("the cameras must include 'head', the behaviour camera the search looks through")

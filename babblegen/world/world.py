@@ -16,7 +16,8 @@ import numpy as np
 import sapien
 import torch
 
-from babblegen.scene import TaskSpec
+from babblegen.objects import slot_task
+from babblegen.scene import ObjectSpec, TaskSpec
 from babblegen.starts import layout_poses
 from babblegen.world.cameras import CameraRig
 from babblegen.world.exact import row_norm
@@ -34,8 +35,9 @@ class World:
         envs.register_envs()  # the agents, and an env for every registered scene
         self.robot = robot = get_robot(task.robot_uid)
 
-        self.task = task
         self.settings = s = settings or WorldSettings()
+        # with drawn objects, the task's table and camera with the run's object slots (babblegen.objects)
+        self.task = task = slot_task(task, s.objects, s.num_objects)
         self.rng = np.random.default_rng(seed)
         self.env = gym.make(
             task.env_id,
@@ -49,6 +51,7 @@ class World:
             sim_freq=s.sim_freq,
             control_freq=s.control_freq,
             pcm=s.pcm,
+            object_specs=task.objects,
         )
         self.env.reset(seed=seed)
         self.sim = self.env.unwrapped
@@ -206,10 +209,11 @@ class World:
         approach_s = np.abs(np.diff(out_path[: approach + 1], axis=0)).max(axis=1).sum() / s.max_joint_speed
         return len(out) - approach_s * s.control_freq
 
-    def reset(self, start: np.ndarray | None = None) -> None:
+    def reset(self, start: np.ndarray | None = None, objects: tuple[ObjectSpec, ...] | None = None) -> None:
         """Robot at home, every object at its start pose (the task's, or the varied start ``start``: (n_objects,
         3) x, y, yaw, resting on the table, or (n_objects, 7) whole poses of a scene an earlier movement made; not
-        settled yet: `settle_start`), with no physical memory of earlier rollouts: the scene is rebuilt.
+        settled yet: `settle_start`), with no physical memory of earlier rollouts: the scene is rebuilt, with the
+        start's own ``objects`` in the slots when it drew them (else the task's).
 
         Setting poses and velocities is not enough. PhysX keeps state that no API shows (contact pair order,
         friction anchors, broadphase structures), so after other contact-rich rollouts the same command could
@@ -218,11 +222,14 @@ class World:
         zeroed). A rebuilt scene makes the outcome a function of the command alone (0 of 180), for about
         0.1 s per rollout.
         """
-        self.env.reset(options={"reconfigure": True})
+        if objects is not None and [o.name for o in objects] != self.object_names:
+            raise ValueError(f"a start's objects fill the slots {self.object_names}, got {[o.name for o in objects]}")
+        self.env.reset(options={"reconfigure": True, "objects": objects or self.task.objects})
         self._bind_scene()
         if start is not None:
             start = np.asarray(start, dtype=np.float64)
-            poses = start if start.shape[1] == 7 else layout_poses(self.task, start)  # a made start's whole poses
+            # a made start's whole poses, or a layout resting on the table
+            poses = start if start.shape[1] == 7 else layout_poses(self.task, start, objects)
             for entity, pose in zip(self._object_entities, poses, strict=True):
                 entity.set_pose(sapien.Pose(pose[:3], pose[3:]))
 
@@ -282,7 +289,7 @@ class World:
         extra_settle = max(int(round((s.max_settle_seconds - s.settle_seconds) * s.fps)), 0) * per_frame
 
         t_reset = time.perf_counter()
-        self.reset(command.start)
+        self.reset(command.start, command.objects)
         not_used = self.settle_start() if command.start is not None else ""
         timings["reset"] = time.perf_counter() - t_reset
         if not_used:
