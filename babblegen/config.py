@@ -138,7 +138,6 @@ class RunConfig:
         if self.video_codec not in VIDEO_CODECS:
             raise ConfigError(f"unknown video codec {self.video_codec!r}; choose one of: {', '.join(VIDEO_CODECS)}")
 
-
     def _check_placement(self, starts: int = 20) -> None:
         """Refuse drawn objects that the start regions cannot hold: the run's first starts are drawn here."""
         from babblegen.assembly import build_starts

@@ -124,6 +124,8 @@ class StartSampler:
         if task.starts is None:
             raise ValueError(f"task {task.name!r} declares no start distribution (TaskSpec.starts)")
         self.task, self.seed, self.objects = task, int(seed), objects
+        # draws per object before a layout starts again: drawn objects may not fit at all (told in about a second)
+        self._tries = _MAX_TRIES if objects is None else _MAX_TRIES // 10
         self.ends: dict[int, np.ndarray] = {}  # attempt -> the objects' poses its movement left (`record_end`)
         self.end_objects: dict[int, tuple[ObjectSpec, ...] | None] = {}  # attempt -> the objects it ran with
         self.radius = np.array([o.footprint_radius for o in task.objects])
@@ -202,11 +204,11 @@ class StartSampler:
         self, i: int, others: np.ndarray, radii: np.ndarray, rng: np.random.Generator, radius: np.ndarray | None = None
     ) -> np.ndarray | None:
         """(x, y, yaw) of object ``i`` in its region, drawn until it keeps its distances from ``others`` (None when no
-        draw in `_MAX_TRIES` does)."""
+        draw in ``self._tries`` does)."""
         dist = self.task.starts
         region = dist.regions[i]
         r = float((self.radius if radius is None else radius)[i])
-        for _ in range(_MAX_TRIES):
+        for _ in range(self._tries):
             x, y, yaw = rng.uniform(*region.x), rng.uniform(*region.y), rng.uniform(*region.yaw)
             if self._fits(r, x, y, others, radii, dist.gap):
                 return np.array([x, y, yaw])
