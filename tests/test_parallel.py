@@ -199,8 +199,9 @@ def test_varied_starts_killed_then_resumed_write_the_same_dataset(one_worker_var
     assert read_run_info(out)["config"]["world"]["starts"] == "varied"
 
 
-# children that start from the scene their parent's movement left, and children drawn independently of the parents
-MADE = [*VARIED, "--start-from-end", "0.5", "--independent-share", "0.25"]
+# children that start from the scene their parent's movement left, and children drawn independently of the parents;
+# every new start draws its own five objects
+MADE = [*VARIED, "--start-from-end", "0.5", "--independent-share", "0.25", "--objects", "varied", "--num-objects", "5"]
 
 
 @pytest.fixture(scope="module")
@@ -210,6 +211,14 @@ def one_worker_made(tmp_path_factory):
     rows = [r for r in read_attempts(out) if r["feasible"]]
     assert "made" in {r["start"]["source"] for r in rows}
     assert any(r["parent"] is None and r["generation"] > 0 for r in rows), "independent children"
+    by_attempt = {r["attempt"]: r for r in read_attempts(out)}
+    assert len({json.dumps(r["objects"]) for r in rows}) >= 5, "starts draw their own objects"
+    for r in rows:
+        assert len(r["objects"]) == 5
+        if r["start"]["source"] == "made":  # the scene an attempt left, with that attempt's objects
+            assert r["objects"] == by_attempt[r["start"]["made_from"]]["objects"]
+        if r["start"]["source"] == "inherited":
+            assert r["objects"] == by_attempt[r["parent"]]["objects"]
     return out
 
 

@@ -53,6 +53,8 @@ class Frames:
     end_views: dict[str, np.ndarray] | None = None
     # (T, 4, 4) OpenCV cam2world per frame of each camera that moves (a wrist camera)
     camera_poses: dict[str, np.ndarray] | None = None
+    # the objects the episode ran with, when its start drew them (None: the task's): what its frames are rendered of
+    objects: tuple | None = None
 
     def __len__(self) -> int:
         return len(self.state)

@@ -64,6 +64,7 @@ class World:
         self.reach = self.planning.reach
 
         self.object_names = task.object_names
+        self.scene_objects = task.objects  # what the scene holds now (`reset`)
         self._bind_scene()
         self.start_poses = self._object_poses()
 
@@ -224,7 +225,8 @@ class World:
         """
         if objects is not None and [o.name for o in objects] != self.object_names:
             raise ValueError(f"a start's objects fill the slots {self.object_names}, got {[o.name for o in objects]}")
-        self.env.reset(options={"reconfigure": True, "objects": objects or self.task.objects})
+        self.scene_objects = objects or self.task.objects
+        self.env.reset(options={"reconfigure": True, "objects": self.scene_objects})
         self._bind_scene()
         if start is not None:
             start = np.asarray(start, dtype=np.float64)
@@ -353,6 +355,7 @@ class World:
 
         ends = np.stack(rec.pop("images"))
         frames = Frames(**{k: np.stack(v) for k, v in rec.items()}, images=None, end_images=ends)
+        frames.objects = command.objects
         if head_ends[0]:
             frames.end_views = {k: np.stack([e[k] for e in head_ends]) for k in head_ends[0]}
         if not defer_render:
@@ -397,6 +400,7 @@ class World:
             inside = 0 < t < n - 1
             if not inside and not self._others:
                 continue
+            self._hold_objects(frames.objects)  # again after every pause: a rollout in it rebuilt the scene
             self._pose_scene(frames, t)
             images = self._render_views(self._others, head=inside)
             if inside:
@@ -415,6 +419,13 @@ class World:
         frames.views, frames.end_views = views or None, None
         frames.camera_poses = {name: np.stack(p) for name, p in poses.items()} or None
         self._pose_scene(frames, n - 1)
+
+    def _hold_objects(self, objects: tuple[ObjectSpec, ...] | None) -> None:
+        """The scene rebuilt with ``objects`` (None: the task's) unless it holds them already: an episode is
+        rendered in a scene of its own objects, wherever and after whatever it is rendered."""
+        wanted = objects or self.task.objects
+        if wanted != self.scene_objects:
+            self.reset(None, objects)
 
     def _pose_scene(self, frames: Frames, t: int) -> None:
         """Put the arm and the objects where frame ``t`` recorded them."""
