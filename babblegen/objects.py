@@ -23,9 +23,9 @@ VARIED_SHAPES = ("box", "cylinder", "sphere", "capsule", "dumbbell", "hull")
 HELDOUT_SHAPES = ("ell", "tee")
 MAX_OBJECTS = 8
 _STREAM = 0x0B7EC7  # the object draws' own random stream, apart from the layouts' and the explorer's
-# where every slot may start with varied objects: the paper's start regions together (the back of the table beyond
-# the arm's reach included: objects there move only when pushed by another), always whole in the head camera's view
-SLOT_REGION = PlacementRegion(x=(0.58, 1.22), y=(-0.40, 0.24))
+# where every slot may start with drawn objects: the paper's regions of the gray box, the can and the blue box together
+# (within the arm's reach), always whole in the head camera's view
+SLOT_REGION = PlacementRegion(x=(0.58, 1.0), y=(-0.38, 0.24))
 
 
 @dataclass(frozen=True)
@@ -35,7 +35,7 @@ class ObjectRanges:
     ``static_friction`` (dynamic: 0.6 to 1.0 times it); ``restitution``. Each physical range is cut in three:
     ``varied`` draws from the outer thirds, ``heldout`` from the middle one (on a log scale for density)."""
 
-    size: tuple[float, float] = (0.022, 0.05)
+    size: tuple[float, float] = (0.03, 0.06)
     density: tuple[float, float] = (100.0, 1000.0)
     static_friction: tuple[float, float] = (0.2, 1.0)
     restitution: tuple[float, float] = (0.0, 0.6)
@@ -102,8 +102,11 @@ class ObjectSampler:
         self.shapes = VARIED_SHAPES if object_set == "varied" else HELDOUT_SHAPES
         self.names = slot_names(count)
 
-    def draw(self, attempt: int) -> tuple[ObjectSpec, ...]:
-        rng = np.random.default_rng([self.seed, _STREAM, int(attempt)])
+    def draw(self, attempt: int, again: int = 0) -> tuple[ObjectSpec, ...]:
+        """The objects of the start drawn for ``attempt``; ``again`` > 0: another set for it (when a set found no
+        place in the start regions, `babblegen.starts.StartSampler.draw`)."""
+        key = [self.seed, _STREAM, int(attempt)] + ([int(again)] if again else [])
+        rng = np.random.default_rng(key)
         return tuple(self.one(name, rng) for name in self.names)
 
     def _physical(self, name: str, rng: np.random.Generator) -> float:
@@ -145,7 +148,7 @@ class ObjectSampler:
             return (u(0.7 * lo, 0.75 * hi), u(0.5 * lo, hi)), ()
         if shape == "dumbbell":
             ball = u(0.8 * lo, 0.75 * hi)
-            return (ball, _r(ball * rng.uniform(0.35, 0.6)), _r(ball + rng.uniform(1.0 * lo, 1.2 * hi))), ()
+            return (ball, _r(ball * rng.uniform(0.35, 0.6)), _r(ball + rng.uniform(0.5 * lo, 0.6 * hi))), ()
         if shape in HELDOUT_SHAPES:  # two bars: along x, along y; their half width; their half height
             return (u(1.2 * lo, 1.4 * hi), u(0.8 * lo, hi), _r(rng.uniform(0.35, 0.5) * lo), u(0.7 * lo, 0.8 * hi)), ()
         # hull: 14 points on an ellipsoid with semi-axes in the size range, centred on their bounding box

@@ -23,6 +23,7 @@ __all__ = ["NEW_START", "START_MODES", "Start", "StartDraw", "StartSampler", "la
 _STREAM = 0x5747A  # the start draws' own random stream, apart from the explorer's and the rollouts'
 _MAX_TRIES = 10_000
 _MAX_LAYOUTS = 20
+_MAX_OBJECT_SETS = 3  # object sets drawn for one start before the regions are judged too small
 
 
 @dataclass
@@ -137,9 +138,15 @@ class StartSampler:
         rng = np.random.default_rng([self.seed, _STREAM, int(attempt)])
         if self.objects is None:
             return Start(self.layout(rng), int(attempt))
-        objects = self.objects.draw(attempt)
-        radius = np.array([o.footprint_radius for o in objects])
-        return Start(self.layout(rng, radius), int(attempt), objects=objects)
+        again = 0
+        while True:  # a set the regions cannot hold: another set for the same attempt, a few times
+            objects = self.objects.draw(attempt, again)
+            try:
+                return Start(self.layout(rng, self._radius(objects)), int(attempt), objects=objects)
+            except ValueError:
+                again += 1
+                if again == _MAX_OBJECT_SETS:
+                    raise
 
     def move_one(self, parent: Start, attempt: int) -> Start:
         """The parent's layout with one object, drawn uniformly, placed anew in its region (the others stay)."""

@@ -46,6 +46,7 @@ def card_text(info: dict[str, Any], run_info: dict[str, Any], counters: dict[str
   pose (x, y, z, qw, qx, qy, qz); `observation.contacts` which objects the arm touched since the previous frame.
 {_camera_lines(info)}
 - **Starts:** {starts_text(cfg)}
+- **Objects:** {objects_text(cfg)}
 - **Task string:** "{run_info.get("episode_task", "")}".
 - **Every attempt**, infeasible ones included, with its genome, descriptor, novelty and contacts:
   `babblegen/attempts.jsonl`; the full configuration and software versions: `babblegen/run.json`.
@@ -88,6 +89,31 @@ def starts_text(cfg: dict[str, Any]) -> str:
     return text + (
         ". Each row of `babblegen/attempts.jsonl` records its start (`start`) and, when executed, the objects' "
         "settled poses at the first frame (`start_poses`)."
+    )
+
+
+def objects_text(cfg: dict[str, Any]) -> str:
+    """Which objects stood on the table, and the distribution drawn ones came from (``world.objects``)."""
+    from babblegen.objects import HELDOUT_SHAPES, VARIED_SHAPES, ObjectRanges
+
+    world = cfg.get("world") or {}
+    kind = world.get("objects", "paper")
+    factors = (
+        "Each row of `babblegen/attempts.jsonl` holds its objects under `objects` (per slot: shape, size, mass, "
+        "density, static and dynamic friction, restitution, colour), and `meta/episodes` the same as "
+        "`objects/<slot>/<factor>` columns."
+    )
+    if kind == "paper":
+        return f"paper: the NovEB paper's gray box, can, blue box and ball in every episode. {factors}"
+    ranges = ObjectRanges(**(world.get("object_ranges") or {}))
+    shapes = VARIED_SHAPES if kind == "varied" else HELDOUT_SHAPES
+    part = "outer thirds" if kind == "varied" else "middle third (held out from every varied draw)"
+    return (
+        f"{kind}: every new start draws its own {world.get('num_objects', 4)} objects (slots `object_0`...): shape "
+        f"uniform over {', '.join(shapes)}; every dimension {ranges.size[0]}-{ranges.size[1]} m; from the {part} of "
+        f"density {ranges.density[0]:g}-{ranges.density[1]:g} kg/m^3 (log scale; mass = density x volume), static "
+        f"friction {ranges.static_friction[0]:g}-{ranges.static_friction[1]:g} (dynamic 0.6-1.0 times it) and "
+        f"restitution {ranges.restitution[0]:g}-{ranges.restitution[1]:g}; colour uniform in hue. {factors}"
     )
 
 
