@@ -96,7 +96,7 @@ def episode_data(
         state=data["observation.state"][rows],
         ee_pos=data["observation.ee_pos"][rows],
         object_poses=data["observation.environment_state"][rows].reshape(n, n_objects, 7),
-        contacts=data["observation.contacts"][rows],
+        contacts=data["observation.contacts"][rows].reshape(n, n_objects),  # one object's: a column of scalars
         fps=fps,
         views=views,
         start_index=int(data["index"][rows.start]),
