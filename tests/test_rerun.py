@@ -532,3 +532,17 @@ def test_sink_draws_each_episodes_own_objects_part_by_part(tmp_path):
     assert colors == [[red, blue], [green, yellow]]
     # the stand-ins are drawn nowhere
     assert "/world/objects/object_0/shape" not in chunks
+
+
+def test_a_tee_is_drawn_as_its_two_bars_and_boxed_by_both():
+    """A heldout tee (half lengths 5 cm along x and 3 cm along y, bars 2 cm wide, 4 cm high): two boxes whose
+    centres sit 3 cm below and 1 cm above the middle of its 8 cm depth; its start box spans both bars."""
+    from babblegen.exporters.rerun.scene import bounding_half_sizes, object_parts
+
+    tee = factors("object_0", "tee", [0.05, 0.03, 0.01, 0.02], [0.2, 0.4, 0.6, 1.0])
+    parts = object_parts(tee)
+    assert [p.entity for p in parts] == ["part0_box", "part1_box"]
+    close([p.fields["half_sizes"] for p in parts], [[0.05, 0.01, 0.02], [0.01, 0.03, 0.02]])
+    close([p.fields["centers"] for p in parts], [[0.0, -0.03, 0.0], [0.0, 0.01, 0.0]])
+    assert all(p.fields["colors"].tolist() == [51, 102, 153, 255] for p in parts)
+    close(bounding_half_sizes(tee), [0.05, 0.04, 0.02])
