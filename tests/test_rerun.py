@@ -546,3 +546,26 @@ def test_a_tee_is_drawn_as_its_two_bars_and_boxed_by_both():
     close([p.fields["centers"] for p in parts], [[0.0, -0.03, 0.0], [0.0, 0.01, 0.0]])
     assert all(p.fields["colors"].tolist() == [51, 102, 153, 255] for p in parts)
     close(bounding_half_sizes(tee), [0.05, 0.04, 0.02])
+
+
+def test_a_resumed_run_empties_the_parts_an_earlier_segment_drew(tmp_path):
+    """After a resume the sink no longer knows what the kept segments drew: its first episode's objects still
+    replace them, every part entity the new objects lack drawing nothing from then on."""
+    root, task = drawn_sink_dir(tmp_path / "run", 1)
+    rng = np.random.default_rng(6)
+    dumbbell = [factors("object_0", "dumbbell", [0.03, 0.012, 0.06], [1.0, 0.0, 0.0, 1.0])]
+    row, rollout = drawn_attempt(0, dumbbell, rng)
+    sink = RerunSink(root, task, list(ARM_JOINTS))
+    sink.log(row, rollout)
+    append_rows(root, [row])
+    sink.flush()  # committed; the process ends here
+    resumed = RerunSink(root, task, list(ARM_JOINTS), state={"episodes": 1, "attempts": 1})
+    resumed.log(*drawn_attempt(1, [factors("object_0", "box", [0.02, 0.03, 0.04], [0.0, 1.0, 0.0, 1.0])], rng))
+    resumed.close()
+    chunks = read_recording(*recording_files(root))
+    entity = "/world/objects/object_0/"
+    close(parts_at(chunks, entity + "part0_sphere", "Ellipsoids3D:half_sizes", 0), [[0.03] * 3])
+    for part, component in [("part0_sphere", "Ellipsoids3D"), ("part1_sphere", "Ellipsoids3D")]:
+        assert parts_at(chunks, entity + part, f"{component}:half_sizes", T) == []
+    assert parts_at(chunks, entity + "part2_capsule", "Capsules3D:lengths", T) == []
+    close(parts_at(chunks, entity + "part0_box", "Boxes3D:half_sizes", T), [[0.02, 0.03, 0.04]])
