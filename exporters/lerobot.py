@@ -258,7 +258,8 @@ def arrow_table(columns: dict[str, np.ndarray], hf_features):
             )
             continue
         values = np.asarray(columns[key])
-        if isinstance(feature, datasets.Value):
+        if isinstance(feature, datasets.Value):  # one value a frame (a feature of shape (1,): one object's contacts)
+            values = values.reshape(len(values))
             arrays.append(pa.array(values.astype(feature.pa_type.to_pandas_dtype(), copy=False)))
         elif isinstance(feature, datasets.List) and isinstance(feature.feature, datasets.Value) and feature.length > 0:
             flat = values.reshape(len(values), feature.length).astype(feature.feature.pa_type.to_pandas_dtype())

@@ -1,6 +1,7 @@
 """The NovEB paper's figures and a summary table for one run, optionally against a comparison run.
 
-Every number comes from the sidecar table (DIR/babblegen/attempts.jsonl) and the task in run.json:
+Every number comes from the sidecar table (DIR/babblegen/attempts.jsonl) and the task in run.json; objects are
+named by slot (the paper's names, or object_0 ... in a run that draws its objects, each slot in a colour of its own):
     fig2_final_tool_positions.png     final tool positions seen from above (Fig. 2)
     fig3_final_object_positions.png   final object positions seen from above, coloured by object (Fig. 3)
     fig4_accumulated_contacts.png     accumulated contacts vs attempted movements, both runs (Fig. 4)
@@ -42,6 +43,11 @@ def _fmt(v: Any, digits: int = 3) -> str:
     return str(v)
 
 
+def _touched_of(per_shape: dict[str, dict[str, int]] | None, shape: str) -> str | None:
+    counts = (per_shape or {}).get(shape)
+    return None if counts is None else f"{counts['touched']} / {counts['objects']}"
+
+
 def markdown(
     summaries: list[dict[str, Any]],
     labels: list[str],
@@ -54,10 +60,14 @@ def markdown(
     def row(name: str, values: list[Any]) -> str:
         return f"| {name} | " + " | ".join(_fmt(v) for v in values) + " |\n"
 
-    objects = list(summaries[0]["contacts_per_object"])
+    objects = list(dict.fromkeys(name for s in summaries for name in s["contacts_per_object"]))  # every run's
     body = ""
     body += row("explorer", [s["explorer"] for s in summaries])
     body += row("starts (fixed: the task's scene; varied: drawn layouts)", [s.get("starts") for s in summaries])
+    body += row(
+        "objects (paper: the task's; varied, heldout: drawn per start into slots)",
+        [f"{s.get('objects', 'paper')}, {s.get('num_objects', len(s['contacts_per_object']))}" for s in summaries],
+    )
     body += row("attempted movements", [s["attempts"] for s in summaries])
     body += row("executed movements (episodes)", [s["executed"] for s in summaries])
     body += row("feasible fraction", [s["feasible_fraction"] for s in summaries])
@@ -99,6 +109,12 @@ def markdown(
                 else None
                 for s in summaries
             ],
+        )
+    shapes = sorted({k for s in summaries for k in s.get("contacts_per_shape") or {}})
+    for shape in shapes:
+        body += row(
+            f"{shape} objects touched / started with (in executed movements)",
+            [_touched_of(s.get("contacts_per_shape"), shape) for s in summaries],
         )
     body += row("final tool positions: occupied 2 cm cells", [s["final_tool_spread"]["cells"] for s in summaries])
     body += row("novelty archive size", [s["archive"] for s in summaries])

@@ -29,8 +29,9 @@ def _figure(nrows: int, ncols: int, size: tuple[float, float]):
 
 
 def _top_view_background(ax, run: Run) -> None:
-    """Table (brown), robot (white box), static obstacles (gray) and the objects where they rest; x forward is
-    up, the robot's left (+y) is on the left, as in the paper's views from above."""
+    """Table (brown), robot (white box), static obstacles (gray) and the task's objects where they rest (not in a
+    run that draws its objects); x forward is up, the robot's left (+y) is on the left, as in the paper's views
+    from above."""
     from matplotlib.patches import Circle, Polygon, Rectangle
 
     from .geometry import box_footprint, robot_footprint
@@ -50,7 +51,7 @@ def _top_view_background(ax, run: Run) -> None:
     for box in run.task.get("extra_obstacles") or []:
         foot = box_footprint(box)
         ax.add_patch(Polygon(foot[:, ::-1], closed=True, facecolor="0.85", edgecolor="0.4", lw=1.0, zorder=1.5))
-    for o in run.task["objects"]:
+    for o in [] if run.drawn else run.task["objects"]:  # a run that draws its objects: its slots rest nowhere
         (ox, oy), s, color = o["xy"], o["size"], o["color"][:3]
         if o["shape"] == "box":
             patch = Rectangle((oy - s[1], ox - s[0]), 2 * s[1], 2 * s[0], facecolor="none", edgecolor=color, lw=1.5)

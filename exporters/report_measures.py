@@ -30,7 +30,10 @@ class Run:
         self.rows = read_attempts(self.root)
         self.task = self.info["task"]
         self.object_names: list[str] = [o["name"] for o in self.task["objects"]]
-        self.colors = {o["name"]: tuple(o["color"][:3]) for o in self.task["objects"]}
+        if self.drawn:  # the task's objects are the slots' gray stand-ins: each slot gets a colour of its own
+            self.colors = {n: _slot_color(i) for i, n in enumerate(self.object_names)}
+        else:
+            self.colors = {o["name"]: tuple(o["color"][:3]) for o in self.task["objects"]}
         self.executed = [r for r in self.rows if r.get("feasible")]
         self.clones = read_attempts(self.root, CLONES)
 
@@ -44,6 +47,17 @@ class Run:
         return str((self.info.get("config", {}).get("world") or {}).get("starts") or "fixed")
 
     @property
+    def objects(self) -> str:
+        """Which objects stood on the table (run.json's ``world.objects``): ``paper``, the task's own every episode
+        (also for runs made before objects were drawn), or ``varied`` / ``heldout``, drawn per start."""
+        return str((self.info.get("config", {}).get("world") or {}).get("objects") or "paper")
+
+    @property
+    def drawn(self) -> bool:
+        """Whether each start drew its own objects (the task then holds stand-ins for the slots)."""
+        return self.objects != "paper"
+
+    @property
     def has_start_poses(self) -> bool:
         return any(r.get("start_poses") for r in self.executed)
 
@@ -55,6 +69,27 @@ class Run:
     def touched(self, row: dict[str, Any], name: str | None = None) -> bool:
         t = row.get("touched") or {}
         return bool(t.get(name)) if name is not None else any(bool(v) for v in t.values())
+
+
+def _slot_color(i: int) -> tuple[float, float, float]:
+    """A slot's colour in a run that draws its objects: the one the Rerun recordings give it."""
+    from .rerun.scene import SLOT_COLORS
+
+    return tuple(c / 255 for c in SLOT_COLORS[i % len(SLOT_COLORS)][:3])  # type: ignore[return-value]
+
+
+def shape_contacts(run: Run) -> dict[str, dict[str, int]] | None:
+    """In a run that draws its objects: per shape, how many objects of it executed movements started with
+    (``objects``) and how many of those the arm touched (``touched``); None for the paper's objects."""
+    if not run.drawn:
+        return None
+    out: dict[str, dict[str, int]] = {}
+    for r in run.executed:
+        for o in r.get("objects") or []:
+            counts = out.setdefault(o["shape"], {"objects": 0, "touched": 0})
+            counts["objects"] += 1
+            counts["touched"] += int(run.touched(r, o["name"]))
+    return dict(sorted(out.items()))
 
 
 # --- numbers -------------------------------------------------------------------------------------------------
@@ -187,6 +222,9 @@ def summarize(run: Run) -> dict[str, Any]:
         "dataset": str(run.root),
         "explorer": run.explorer,
         "starts": run.starts,
+        "objects": run.objects,
+        "num_objects": len(run.object_names),
+        "contacts_per_shape": shape_contacts(run),
         "attempts": n,
         "executed": e,
         "generations": len({r.get("generation") for r in rows}),

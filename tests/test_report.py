@@ -243,3 +243,70 @@ def test_dataset_card_says_how_starts_were_drawn(world_settings, explorer, says)
     assert says in line
     if world_settings.get("starts") == "varied":
         assert "settled by physics" in line and "per-object regions" in line and "`start_poses`" in line
+
+
+def test_report_of_a_run_that_draws_six_objects(tmp_path, monkeypatch):
+    """Objects drawn per start, six slots: every slot gets its rows and a colour of its own (the stand-ins are all
+    gray), no stand-in is drawn resting on the table, and the summary counts touched objects by shape."""
+    from babblegen.objects import slot_task
+    from babblegen.tasks import get_task
+
+    task = slot_task(get_task("noveb_tabletop"), "varied", 6).to_dict()
+    names = [o["name"] for o in task["objects"]]
+    world = {"starts": "varied", "objects": "varied", "num_objects": 6}
+    root = tmp_path / "ds"
+    (root / "babblegen").mkdir(parents=True)
+    (root / "babblegen" / "run.json").write_text(
+        json.dumps({"config": {"explorer": "noveb", "world": world}, "task": task})
+    )
+    shapes = [["box", "sphere", "capsule", "box", "hull", "dumbbell"], ["sphere", "sphere", "box", "tee", "ell", "box"]]
+    touched = [{"object_0", "object_3"}, {"object_1", "object_2"}]  # boxes: 2 of 2, then 1 of 2; spheres 0 + 1 of 3
+    rows = []
+    for i in range(2):
+        poses = {n: [0.7 + 0.05 * j, -0.2 + 0.08 * j, 0.75, 1.0, 0.0, 0.0, 0.0] for j, n in enumerate(names)}
+        objects = [
+            {"name": n, "shape": s, "size": [0.03], "color": [0.5, 0.5, 0.5, 1.0]}
+            for n, s in zip(names, shapes[i], strict=True)
+        ]
+        row = {"attempt": i, "generation": 0, "explorer": "noveb", "kind": "ee_waypoints", "genome": [[0.1 * i] * 3]}
+        row |= {"feasible": True, "episode_index": i, "novelty": 0.1, "archived": True, "final_ee_pos": [0.6, 0.0, 0.8]}
+        row |= {"touched": {n: n in touched[i] for n in names}, "displacement": dict.fromkeys(names, 0.0)}
+        row |= {"final_poses": poses, "objects": objects}
+        rows.append(row)
+    (root / "babblegen" / "attempts.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
+    assert main(["report", str(root)]) == 0
+    summary = json.loads((root / "report" / "summary.json").read_text())["run"]
+    assert (summary["objects"], summary["num_objects"]) == ("varied", 6)
+    assert summary["contacts_per_object"] == {
+        n: int(n in {"object_0", "object_1", "object_2", "object_3"}) for n in names
+    }
+    assert summary["contacts_per_shape"] == {
+        "box": {"objects": 4, "touched": 3},
+        "capsule": {"objects": 1, "touched": 0},
+        "dumbbell": {"objects": 1, "touched": 0},
+        "ell": {"objects": 1, "touched": 0},
+        "hull": {"objects": 1, "touched": 0},
+        "sphere": {"objects": 3, "touched": 1},
+        "tee": {"objects": 1, "touched": 0},
+    }
+    md = (root / "report" / "summary.md").read_text()
+    assert "| objects (paper: the task's; varied, heldout: drawn per start into slots) | varied, 6 |" in md
+    assert "| box objects touched / started with (in executed movements) | 3 / 4 |" in md
+    assert all(f"| contacts with {n} |" in md for n in names)
+    from babblegen.exporters.report_measures import Run
+
+    colors = Run(root).colors
+    assert len(set(colors.values())) == 6 and (0.5, 0.5, 0.5) not in colors.values()
+    # the figure of final positions: six coloured point sets and no stand-in outline
+    from babblegen.exporters import report_figures
+
+    drawn = []
+    background = report_figures._top_view_background
+
+    def spy(ax, run):
+        background(ax, run)
+        drawn.append(len(ax.patches))
+
+    monkeypatch.setattr(report_figures, "_top_view_background", spy)
+    report_figures.figure_final_objects([Run(root)], tmp_path / "fig3.png")
+    assert drawn == [2], "the table and the robot only"

@@ -409,3 +409,163 @@ def test_unknown_recording_frames_are_refused(tmp_path):
     with pytest.raises(SystemExit) as exit_info:
         main(["generate", "--out", str(tmp_path / "x"), "--rerun-frames", "middle"])
     assert exit_info.value.code == 2 and not (tmp_path / "x").exists()
+
+
+# --- objects drawn per start -------------------------------------------------------------------------------------
+def drawn_sink_dir(root: Path, count: int) -> tuple[Path, object]:
+    """A run folder like `sink_dir`'s for a run that draws ``count`` objects per start (``--objects varied``)."""
+    from babblegen.objects import slot_task
+    from babblegen.tasks import get_task
+
+    task = slot_task(get_task("noveb_tabletop"), "varied", count)
+    (root / "babblegen").mkdir(parents=True)
+    world = {"fps": 10, "camera_height": 16, "camera_width": 16, "objects": "varied", "num_objects": count}
+    info = {"config": {"world": world}, "task": task.to_dict()}
+    (root / "babblegen" / "run.json").write_text(json.dumps(info))
+    (root / "babblegen" / "attempts.jsonl").write_bytes(b"")
+    return root, task
+
+
+def factors(name: str, shape: str, size: list[float], color: list[float], **extra) -> dict:
+    return {"name": name, "shape": shape, "size": size, "mass": 0.1, "density": 100.0, "static_friction": 0.5,
+            "dynamic_friction": 0.4, "restitution": 0.1, "color": color, **extra}  # fmt: skip
+
+
+def drawn_attempt(i: int, objects: list[dict], rng: np.random.Generator) -> tuple[dict, Rollout]:
+    """An executed attempt (episode ``i``) of a run whose start brought ``objects``."""
+    n = len(objects)
+    names = [o["name"] for o in objects]
+    row = {"attempt": i, "generation": i, "feasible": True, "episode_index": i, "objects": objects}
+    poses = np.tile([0.8, 0.1 * i, 0.75, 1.0, 0.0, 0.0, 0.0], (T, n, 1))
+    frames = Frames(
+        state=rng.uniform(-1, 0, (T, DOF)),
+        action=np.zeros((T, DOF)),
+        ee_pos=rng.uniform(0, 1, (T, 3)),
+        object_poses=poses,
+        contacts=np.zeros((T, n)),
+        images=rng.integers(0, 255, (T, 16, 16, 3), dtype=np.uint8),
+    )
+    row.update(
+        reason="",
+        n_frames=T,
+        novelty=1.0,
+        archived=True,
+        ee_targets=[[0.7, 0.0, 0.9]],
+        touched=dict.fromkeys(names, False),
+        final_poses={m: poses[-1, j].tolist() for j, m in enumerate(names)},
+        final_ee_pos=[0.7, 0.0, 0.9],
+    )
+    return row, Rollout(Command("ee_waypoints", np.zeros((1, 3))), True, ee_targets=np.zeros((1, 3)), frames=frames)
+
+
+def parts_at(chunks, entity: str, component: str, index: int) -> list:
+    """A part entity's value of one component at dataset index ``index`` ([] where it draws nothing then)."""
+    times, values = temporal(chunks, entity, component)
+    return values[int(np.flatnonzero(times == index)[-1])]
+
+
+def close(actual, expected) -> None:
+    np.testing.assert_allclose(np.asarray(actual, dtype=np.float64), np.asarray(expected, dtype=np.float64), atol=1e-6)
+
+
+def test_sink_draws_each_episodes_own_objects_part_by_part(tmp_path):
+    """A run that draws its objects: each episode's objects, one entity per part under the slot's posed entity, with
+    the episode's sizes and colours; a part the next episode's object lacks draws nothing there."""
+    root, task = drawn_sink_dir(tmp_path / "run", 2)
+    hull = [[0.03, 0.0, -0.02], [-0.03, 0.015, -0.02], [0.0, -0.015, -0.02], [0.0, 0.0, 0.02]]  # centred on its box
+    first = [
+        factors("object_0", "dumbbell", [0.03, 0.012, 0.06], [1.0, 0.0, 0.0, 1.0]),
+        factors("object_1", "hull", [0.03, 0.015, 0.02], [0.0, 0.0, 1.0, 1.0], vertices=hull),
+    ]
+    second = [
+        factors("object_0", "box", [0.02, 0.03, 0.04], [0.0, 1.0, 0.0, 1.0]),
+        factors("object_1", "capsule", [0.025, 0.04], [1.0, 1.0, 0.0, 1.0]),
+    ]
+    rng = np.random.default_rng(5)
+    sink = RerunSink(root, task, list(ARM_JOINTS))
+    for i, objects in enumerate([first, second]):
+        row, rollout = drawn_attempt(i, objects, rng)
+        sink.log(row, rollout)
+        append_rows(root, [row])
+    sink.close()
+    files = recording_files(root)
+    done = subprocess.run([RERUN_CLI, "rrd", "verify", *files], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    chunks = read_recording(*files)
+    red, green, blue, yellow = 0xFF0000FF, 0x00FF00FF, 0x0000FFFF, 0xFFFF00FF  # RGBA as Rerun packs it
+    dumbbell = "/world/objects/object_0/"
+    # episode 0 (index 0): the dumbbell's balls 6 cm either side of its centre and the bar between them
+    close(parts_at(chunks, dumbbell + "part0_sphere", "Ellipsoids3D:half_sizes", 0), [[0.03] * 3])
+    close(parts_at(chunks, dumbbell + "part0_sphere", "Ellipsoids3D:centers", 0), [[-0.06, 0, 0]])
+    close(parts_at(chunks, dumbbell + "part1_sphere", "Ellipsoids3D:centers", 0), [[0.06, 0, 0]])
+    assert parts_at(chunks, dumbbell + "part1_sphere", "Ellipsoids3D:colors", 0) == [red]
+    # the bar: a capsule of radius 1.2 cm whose straight part spans the 6 cm between the balls' surfaces, lying
+    # along x (Rerun's capsules run along +z from their translation)
+    close(parts_at(chunks, dumbbell + "part2_capsule", "Capsules3D:lengths", 0), [0.06])
+    close(parts_at(chunks, dumbbell + "part2_capsule", "Capsules3D:radii", 0), [0.012])
+    close(parts_at(chunks, dumbbell + "part2_capsule", "Capsules3D:translations", 0), [[-0.03, 0, 0]])
+    q = parts_at(chunks, dumbbell + "part2_capsule", "Capsules3D:quaternions", 0)[0]
+    from scipy.spatial.transform import Rotation
+
+    close(Rotation.from_quat(q).apply([0, 0, 1]), [1, 0, 0])
+    # the hull: a tetrahedron (4 faces, 3 corners each), its faces' normals pointing outwards
+    mesh = "/world/objects/object_1/part0_hull"
+    corners = np.array(parts_at(chunks, mesh, "Mesh3D:vertex_positions", 0))
+    normals = np.array(parts_at(chunks, mesh, "Mesh3D:vertex_normals", 0))
+    assert corners.shape == (12, 3) and len(parts_at(chunks, mesh, "Mesh3D:triangle_indices", 0)) == 4
+    assert {tuple(np.round(c, 6)) for c in corners} == {tuple(v) for v in hull}
+    assert np.all(np.einsum("ij,ij->i", normals, corners - np.mean(hull, axis=0)) > 0)
+    assert parts_at(chunks, mesh, "Mesh3D:albedo_factor", 0) == [blue]
+    # episode 1 (index T): a box and a capsule; the dumbbell's balls and the hull draw nothing
+    box = dumbbell + "part0_box"
+    close(parts_at(chunks, box, "Boxes3D:half_sizes", T), [[0.02, 0.03, 0.04]])
+    assert parts_at(chunks, box, "Boxes3D:colors", T) == [green]
+    assert parts_at(chunks, "/world/objects/object_1/part0_capsule", "Capsules3D:colors", T) == [yellow]
+    for gone in (dumbbell + "part0_sphere", dumbbell + "part1_sphere"):
+        assert parts_at(chunks, gone, "Ellipsoids3D:half_sizes", T) == []
+    assert parts_at(chunks, dumbbell + "part2_capsule", "Capsules3D:lengths", T) == []
+    assert parts_at(chunks, mesh, "Mesh3D:vertex_positions", T) == []
+    # each episode's start boxes: its objects' bounding boxes, in their colours
+    _, half = temporal(chunks, "/world/start", "Boxes3D:half_sizes")
+    close(half, [[[0.09, 0.03, 0.03], [0.03, 0.015, 0.02]], [[0.02, 0.03, 0.04], [0.065, 0.025, 0.025]]])
+    _, colors = temporal(chunks, "/world/start", "Boxes3D:colors")
+    assert colors == [[red, blue], [green, yellow]]
+    # the stand-ins are drawn nowhere
+    assert "/world/objects/object_0/shape" not in chunks
+
+
+def test_a_tee_is_drawn_as_its_two_bars_and_boxed_by_both():
+    """A heldout tee (half lengths 5 cm along x and 3 cm along y, bars 2 cm wide, 4 cm high): two boxes whose
+    centres sit 3 cm below and 1 cm above the middle of its 8 cm depth; its start box spans both bars."""
+    from babblegen.exporters.rerun.scene import bounding_half_sizes, object_parts
+
+    tee = factors("object_0", "tee", [0.05, 0.03, 0.01, 0.02], [0.2, 0.4, 0.6, 1.0])
+    parts = object_parts(tee)
+    assert [p.entity for p in parts] == ["part0_box", "part1_box"]
+    close([p.fields["half_sizes"] for p in parts], [[0.05, 0.01, 0.02], [0.01, 0.03, 0.02]])
+    close([p.fields["centers"] for p in parts], [[0.0, -0.03, 0.0], [0.0, 0.01, 0.0]])
+    assert all(p.fields["colors"].tolist() == [51, 102, 153, 255] for p in parts)
+    close(bounding_half_sizes(tee), [0.05, 0.04, 0.02])
+
+
+def test_a_resumed_run_empties_the_parts_an_earlier_segment_drew(tmp_path):
+    """After a resume the sink no longer knows what the kept segments drew: its first episode's objects still
+    replace them, every part entity the new objects lack drawing nothing from then on."""
+    root, task = drawn_sink_dir(tmp_path / "run", 1)
+    rng = np.random.default_rng(6)
+    dumbbell = [factors("object_0", "dumbbell", [0.03, 0.012, 0.06], [1.0, 0.0, 0.0, 1.0])]
+    row, rollout = drawn_attempt(0, dumbbell, rng)
+    sink = RerunSink(root, task, list(ARM_JOINTS))
+    sink.log(row, rollout)
+    append_rows(root, [row])
+    sink.flush()  # committed; the process ends here
+    resumed = RerunSink(root, task, list(ARM_JOINTS), state={"episodes": 1, "attempts": 1})
+    resumed.log(*drawn_attempt(1, [factors("object_0", "box", [0.02, 0.03, 0.04], [0.0, 1.0, 0.0, 1.0])], rng))
+    resumed.close()
+    chunks = read_recording(*recording_files(root))
+    entity = "/world/objects/object_0/"
+    close(parts_at(chunks, entity + "part0_sphere", "Ellipsoids3D:half_sizes", 0), [[0.03] * 3])
+    for part, component in [("part0_sphere", "Ellipsoids3D"), ("part1_sphere", "Ellipsoids3D")]:
+        assert parts_at(chunks, entity + part, f"{component}:half_sizes", T) == []
+    assert parts_at(chunks, entity + "part2_capsule", "Capsules3D:lengths", T) == []
+    close(parts_at(chunks, entity + "part0_box", "Boxes3D:half_sizes", T), [[0.02, 0.03, 0.04]])

@@ -11,6 +11,8 @@ Entities:
     world/table, world/obstacles/<name>                                     the static scene
     world/robot/base/*, world/robot/arm/{box,sphere,cylinder}              the arm (posed per frame by FK)
     world/objects/<name> (pose per frame), world/objects/<name>/shape       objects in their own colours
+    world/objects/<slot>/part<k>_<kind>                                     objects drawn per start: each episode's
+                                                                            parts, at its first frame
     world/head_camera (pose and pinhole frustum), head_camera/image        head-camera frames (JPEG)
     world/tool (red while touching), world/tool_path, world/tool_waypoints  the tool point, its path, its targets
     world/object_paths, world/contact_events                                object paths, where contacts happened

@@ -72,6 +72,7 @@ class AttemptColumns:
                 "last_index": start + max(int(row.get("n_frames") or 1), 1) - 1 if executed else -1,
                 "final_ee": row.get("final_ee_pos") if executed else None,
                 "final_poses": row.get("final_poses") if executed else None,
+                "colors": self.scene.episode_colors(row.get("objects")),
             }
         )
 
@@ -126,14 +127,16 @@ class AttemptColumns:
         points = {"overview/final_tool": ([r for r in part if r["final_ee"] is not None], None)}
         for name in self.scene.object_names:
             points[f"overview/final_objects/{name}"] = ([r for r in part if name in (r["final_poses"] or {})], name)
+        slot = {name: j for j, name in enumerate(self.scene.object_names)}
         for path, (sel, name) in points.items():
             if not sel:
                 continue
             pos = [r["final_ee"] if name is None else r["final_poses"][name][:3] for r in sel]
-            color = TOOL_COLOR if name is None else self.scene.colors[name]
+            # each object in its own colour: the slot's, or in a run that draws them, the episode's
+            colors = [TOOL_COLOR if name is None else r["colors"][slot[name]] for r in sel]
             if self.static_overview:
-                rec.log(path, rr.Points3D(pos, colors=color, radii=0.008), static=True)
+                rec.log(path, rr.Points3D(pos, colors=colors, radii=0.008), static=True)
             else:
                 n = len(sel)
-                cols = rr.Points3D.columns(positions=pos, colors=[color] * n, radii=[0.008] * n)
+                cols = rr.Points3D.columns(positions=pos, colors=colors, radii=[0.008] * n)
                 rec.send_columns(path, indexes=indexes(sel), columns=cols)

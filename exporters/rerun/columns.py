@@ -11,7 +11,7 @@ import numpy as np
 
 from babblegen.config import RERUN_FRAMES as FRAME_MODES  # what a run's recording logs per episode
 
-from .scene import CONTACT_COLOR, HEAD_IMAGE, START, TOOL_COLOR, Scene, quat_xyzw
+from .scene import CONTACT_COLOR, HEAD_IMAGE, START, TOOL_COLOR, Scene, object_parts, part_entities, quat_xyzw
 
 if TYPE_CHECKING:
     import rerun as rr
@@ -95,6 +95,7 @@ class EpisodeData:
     timestamps: np.ndarray | None = None  # (T,) seconds; frame_index / fps when None
     attempt: int | None = None
     ee_targets: np.ndarray | None = None  # (k, 3) commanded tool waypoints
+    objects: list[dict[str, Any]] | None = None  # the objects it started with, one per slot (a sidecar row's)
 
     def __len__(self) -> int:
         return len(self.state)
@@ -118,6 +119,8 @@ class _Prepared:
     views: dict[str, dict[str, Any]]  # camera -> kind -> JPEG / PNG bytes per frame, or (T, H, W) uint8 ids
     targets: np.ndarray  # (k, 3)
     events: tuple[np.ndarray, np.ndarray]  # contact positions (m, 3), object index (m,)
+    colors: list[tuple[int, int, int, int]]  # each slot's colour in this episode
+    drawn: list[dict[str, Any]] | None  # its own objects, one per slot (runs that draw them), else None
 
     def __len__(self) -> int:
         return len(self.ee_pos)
@@ -129,16 +132,23 @@ class EpisodeColumns:
 
     Per logged frame: arm shapes, object poses, the tool point (red while touching), every camera's images,
     contact and joint scalars. At each episode's first frame: its whole tool path, waypoints, object paths, contact
-    places and where the objects started (frame 0's poses, as wireframe boxes at `START`). ``frames="all"`` logs
-    every frame; ``"ends"`` only each episode's first and last (before and after the movement, the frames the
-    search compares), the paths still drawn from every frame.
+    places and where the objects started (frame 0's poses, as wireframe boxes at `START`); in a run that draws its
+    objects, also each object's parts (`object_parts`: shapes, sizes and colours), one entity per part under its
+    slot's posed entity, emptied when a later episode's object lacks that part. ``frames="all"`` logs every frame;
+    ``"ends"`` only each episode's first and last (before and after the movement, the frames the search compares),
+    the paths still drawn from every frame.
+
+    ``fresh``: the recording holds no episode yet; else (a resumed run's next segment) the first batch empties
+    every part entity its episodes do not draw.
     """
 
-    def __init__(self, scene: Scene, frames: str = "all") -> None:
+    def __init__(self, scene: Scene, frames: str = "all", fresh: bool = True) -> None:
         logged_frames(1, frames)  # checks the mode
         self.scene = scene
         self.frames = frames
         self._eps: list[_Prepared] = []
+        # per slot, the part entities the last episode sent drew (None: unknown, any of them)
+        self._shown: dict[str, set[str] | None] = {n: set() if fresh else None for n in scene.object_names}
 
     @property
     def n_frames(self) -> int:
@@ -196,6 +206,8 @@ class EpisodeColumns:
                 views=views,
                 targets=np.zeros((0, 3)) if ep.ee_targets is None else np.asarray(ep.ee_targets, float).reshape(-1, 3),
                 events=(ee[t_idx], o_idx),
+                colors=self.scene.episode_colors(ep.objects),
+                drawn=(list(ep.objects) if ep.objects else self.scene.objects) if self.scene.drawn else None,
             )
         )
 
@@ -285,27 +297,66 @@ class EpisodeColumns:
             indexes=first,
             columns=rr.LineStrips3D.columns(
                 strips=[e.object_paths[:, j] for e in eps for j in range(n_obj)],
-                colors=[scene.colors[n] for _ in eps for n in scene.object_names],
+                colors=[c for e in eps for c in e.colors],
                 labels=[n for _ in eps for n in scene.object_names],
             ).partition([n_obj] * len(eps)),
         )
-        rec.send_columns(
-            START,
-            indexes=first,
-            columns=rr.Boxes3D.columns(
-                centers=cat([e.objects[0, :, :3] for e in eps]), quaternions=cat([e.objects[0, :, 3:] for e in eps])
-            ).partition([n_obj] * len(eps)),
-        )
-        objs = cat([e.events[1] for e in eps]).astype(int)
+        start = {
+            "centers": cat([e.objects[0, :, :3] for e in eps]),
+            "quaternions": cat([e.objects[0, :, 3:] for e in eps]),
+        }
+        if scene.drawn:  # each episode's own bounding boxes and colours
+            start["half_sizes"] = cat([scene.half_sizes(e.drawn) for e in eps])
+            start["colors"] = [c for e in eps for c in e.colors]
+        rec.send_columns(START, indexes=first, columns=rr.Boxes3D.columns(**start).partition([n_obj] * len(eps)))
+        if scene.drawn:
+            self._send_parts(rec, eps, first)
         rec.send_columns(
             "world/contact_events",
             indexes=first,
             columns=rr.Points3D.columns(
                 positions=cat([e.events[0] for e in eps]).reshape(-1, 3),
-                colors=[scene.colors[scene.object_names[o]] for o in objs],
-                labels=[scene.object_names[o] for o in objs],
+                colors=[e.colors[o] for e in eps for o in e.events[1].astype(int)],
+                labels=[scene.object_names[o] for e in eps for o in e.events[1].astype(int)],
             ).partition([len(e.events[1]) for e in eps]),
         )
+
+    def _send_parts(self, rec: rr.RecordingStream, eps: list[_Prepared], first: list[rr.TimeColumn]) -> None:
+        """Each episode's objects, part by part, at its first frame: one entity per part (`object_parts`) under the
+        slot's entity, which is posed per frame; a part entity an episode's object lacks gets no instance."""
+        import rerun as rr
+
+        universe = part_entities()
+        for j, name in enumerate(self.scene.object_names):
+            drawn = [{p.entity: p for p in object_parts(e.drawn[j])} for e in eps]
+            shown = self._shown[name]
+            entities = set().union(*drawn) | (set(universe) if shown is None else shown)
+            for entity in sorted(entities):
+                archetype = universe[entity]
+                columns = []
+                for field, dims in PART_FIELDS[archetype].items():
+                    dtype = PART_DTYPES.get(field, np.float32)
+                    values = [
+                        np.asarray(d[entity].fields[field], dtype=dtype).reshape(-1, *dims)
+                        if entity in d
+                        else np.zeros((0, *dims), dtype=dtype)
+                        for d in drawn
+                    ]
+                    cols = getattr(rr, archetype).columns(**{field: np.concatenate(values)})
+                    columns += cols.partition([len(v) for v in values])
+                rec.send_columns(f"world/objects/{name}/{entity}", indexes=first, columns=columns)
+            self._shown[name] = set(drawn[-1])
+
+
+# the components of each part archetype (`object_parts`) and the shape of one of their values
+PART_FIELDS: dict[str, dict[str, tuple[int, ...]]] = {
+    "Boxes3D": {"half_sizes": (3,), "centers": (3,), "colors": (4,)},
+    "Ellipsoids3D": {"half_sizes": (3,), "centers": (3,), "colors": (4,)},
+    "Cylinders3D": {"lengths": (), "radii": (), "centers": (3,), "colors": (4,)},
+    "Capsules3D": {"lengths": (), "radii": (), "translations": (3,), "quaternions": (4,), "colors": (4,)},
+    "Mesh3D": {"vertex_positions": (3,), "vertex_normals": (3,), "triangle_indices": (3,), "albedo_factor": (4,)},
+}
+PART_DTYPES = {"colors": np.uint8, "albedo_factor": np.uint8, "triangle_indices": np.uint32}
 
 
 def _logged(frames: Any, pick: np.ndarray, n_all: int) -> Any:

@@ -1,13 +1,18 @@
 """The static scene from the task description: table, obstacles, objects at rest, head camera and the arm's
-URDF primitives, with the calls that log them (and the overview's background) to a Rerun recording."""
+URDF primitives, with the calls that log them (and the overview's background) to a Rerun recording; and the
+primitives of the objects a start draws (`object_parts`), drawn per episode."""
 
 from __future__ import annotations
 
+import functools
+import json
 from collections.abc import Iterable
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from babblegen.scene import SHAPES, ObjectSpec
 from babblegen.world.kinematics import ArmKinematics, Shape, UrdfModel
 
 from ..geometry import box_footprint, robot_footprint
@@ -30,6 +35,130 @@ HEAD_IMAGE = "head_camera/image"
 # each episode's start: a wireframe box per object where it stood at frame 0 (sizes static, poses per episode)
 START = "world/start"
 START_LINE_RADIUS = 0.002
+# series, legends and mask colours of the slots of a run that draws its objects (the stand-ins are all gray); the
+# objects themselves are drawn in their own colours, episode by episode
+SLOT_COLORS = (
+    (31, 119, 180, 255),
+    (255, 127, 14, 255),
+    (44, 160, 44, 255),
+    (214, 39, 40, 255),
+    (148, 103, 189, 255),
+    (140, 86, 75, 255),
+    (227, 119, 194, 255),
+    (23, 190, 207, 255),
+)
+
+
+def objects_drawn(info: dict[str, Any]) -> bool:
+    """Whether a run (its run.json) drew each start's objects (``--objects varied`` or ``heldout``): its task's
+    objects are then stand-ins for the slots, and each episode's own stand in its sidecar row."""
+    return ((info.get("config") or {}).get("world") or {}).get("objects", "paper") != "paper"
+
+
+def object_spec(obj: dict[str, Any]) -> ObjectSpec:
+    """An object of a task dict (`TaskSpec.to_dict`) or a sidecar row (`ObjectSpec.factors`) as an `ObjectSpec`;
+    fields a run made before they existed take their defaults."""
+    defaults = {"mass": 1.0, "static_friction": 0.3, "dynamic_friction": 0.3, "restitution": 0.0}
+    return ObjectSpec.from_factors({**defaults, **obj}, tuple(obj.get("xy", (0.0, 0.0))))
+
+
+@dataclass(frozen=True)
+class DrawnPart:
+    """One primitive of an object as Rerun draws it, in the object's frame: `entity` (under the object's entity,
+    the same for a kind of part at a place in `ObjectSpec.parts`), the archetype and its fields."""
+
+    entity: str
+    archetype: str  # Boxes3D, Ellipsoids3D, Cylinders3D, Capsules3D or Mesh3D
+    fields: dict[str, np.ndarray]  # one instance's values per field (a mesh: its vertices, normals, triangles)
+    kind: str
+    size: tuple[float, ...]
+
+
+def _capsule_along_x(offset: np.ndarray, half: float) -> tuple[np.ndarray, np.ndarray]:
+    """A Rerun capsule runs from its translation along +z; one lying along x, centred at ``offset``: the
+    translation of its end at -x and the rotation taking z to x."""
+    return offset - np.array([half, 0.0, 0.0]), np.array([0.0, np.sqrt(0.5), 0.0, np.sqrt(0.5)])
+
+
+def hull_mesh(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The convex hull of (n, 3) points as a flat-shaded triangle mesh: (3m, 3) vertices, one per corner of each
+    of its m triangles (wound outwards), their (3m, 3) face normals and the (m, 3) triangle indices."""
+    from scipy.spatial import ConvexHull
+
+    hull = ConvexHull(np.asarray(points, dtype=np.float64))
+    corners = hull.points[hull.simplices]  # (m, 3 corners, 3)
+    normal = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    inward = np.einsum("ij,ij->i", normal, hull.equations[:, :3]) < 0
+    corners[inward] = corners[inward][:, ::-1]
+    normal[inward] *= -1
+    normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-12)
+    m = len(corners)
+    return corners.reshape(-1, 3), np.repeat(normal, 3, axis=0), np.arange(3 * m, dtype=np.uint32).reshape(m, 3)
+
+
+def object_parts(obj: dict[str, Any]) -> list[DrawnPart]:
+    """An object's primitives (`ObjectSpec.parts`) as Rerun draws them in the object's frame, in its own colour
+    (``obj``: a sidecar row's factors or a task's object). Entities are named ``part<k>_<kind>``."""
+    return list(_object_parts(json.dumps(obj, sort_keys=True)))
+
+
+@functools.lru_cache(maxsize=4096)
+def _object_parts(key: str) -> tuple[DrawnPart, ...]:
+    spec = object_spec(json.loads(key))
+    color = np.array(rgba8(spec.color), dtype=np.uint8)
+    out = []
+    for k, part in enumerate(spec.parts()):
+        offset, s = np.asarray(part.offset, dtype=np.float64), np.asarray(part.size, dtype=np.float64)
+        if part.kind == "box":
+            arch, fields = "Boxes3D", {"half_sizes": s[:3], "centers": offset}
+        elif part.kind == "sphere":
+            arch, fields = "Ellipsoids3D", {"half_sizes": np.full(3, s[0]), "centers": offset}
+        elif part.kind == "cylinder":  # upright: Rerun's cylinders stand along z too
+            arch, fields = "Cylinders3D", {"lengths": 2 * s[1], "radii": s[0], "centers": offset}
+        elif part.kind == "capsule":
+            translation, quaternion = _capsule_along_x(offset, s[1])
+            arch = "Capsules3D"
+            fields = {"lengths": 2 * s[1], "radii": s[0], "translations": translation, "quaternions": quaternion}
+        elif part.kind == "hull":
+            vertices, normals, triangles = hull_mesh(np.asarray(part.vertices) + offset)
+            arch = "Mesh3D"
+            fields = {"vertex_positions": vertices, "vertex_normals": normals, "triangle_indices": triangles}
+        else:
+            raise ValueError(f"unknown part kind {part.kind!r}")
+        fields["colors" if arch != "Mesh3D" else "albedo_factor"] = color
+        out.append(DrawnPart(f"part{k}_{part.kind}", arch, fields, part.kind, tuple(float(v) for v in s)))
+    return tuple(out)
+
+
+def part_entities() -> dict[str, str]:
+    """Every part entity an object of any shape may have (`object_parts`), with its archetype."""
+    examples = {"hull": {"vertices": [[0.01, 0, 0], [0, 0.01, 0], [0, 0, 0.01], [-0.01, -0.01, -0.01]]}}
+    size = {"box": 3, "cylinder": 2, "sphere": 1, "capsule": 2, "dumbbell": 3, "ell": 4, "tee": 4, "hull": 3}
+    out: dict[str, str] = {}
+    for shape in SHAPES:
+        obj = {"name": "x", "shape": shape, "size": [0.02] * size[shape], "color": [1, 1, 1, 1]}
+        for part in object_parts({**obj, **examples.get(shape, {})}):
+            out[part.entity] = part.archetype
+    return out
+
+
+def bounding_half_sizes(obj: dict[str, Any]) -> np.ndarray:
+    """Half extents (3,) of an object's axis-aligned bounding box in its own frame, centred on its origin."""
+    high = np.zeros(3)
+    for part in object_spec(obj).parts():
+        o, s = np.abs(np.asarray(part.offset)), np.asarray(part.size, dtype=np.float64)
+        if part.kind == "box":
+            ext = s[:3]
+        elif part.kind == "sphere":
+            ext = np.full(3, s[0])
+        elif part.kind == "cylinder":
+            ext = np.array([s[0], s[0], s[1]])
+        elif part.kind == "capsule":
+            ext = np.array([s[0] + s[1], s[0], s[0]])
+        else:
+            ext = np.abs(np.asarray(part.vertices)).max(axis=0)
+        high = np.maximum(high, o + ext)
+    return high
 
 
 def robot_of(task: dict[str, Any]):
@@ -57,11 +186,17 @@ def quat_xyzw(rot: np.ndarray) -> np.ndarray:
 class Scene:
     """What the recordings draw: table, objects, head camera (from the task as a dict) and the arm's links."""
 
-    def __init__(self, task: dict[str, Any], joint_names: list[str] | None = None) -> None:
+    def __init__(self, task: dict[str, Any], joint_names: list[str] | None = None, drawn: bool = False) -> None:
         self.task = task
         self.objects: list[dict[str, Any]] = list(task["objects"])
         self.object_names = [o["name"] for o in self.objects]
-        self.colors = {o["name"]: rgba8(o["color"]) for o in self.objects}
+        # drawn: each start brings its own objects (`objects_drawn`); the task's are stand-ins for the slots, drawn
+        # nowhere, and each slot gets a colour of its own for plots and masks
+        self.drawn = drawn
+        if drawn:
+            self.colors = {n: SLOT_COLORS[i % len(SLOT_COLORS)] for i, n in enumerate(self.object_names)}
+        else:
+            self.colors = {o["name"]: rgba8(o["color"]) for o in self.objects}
         self.robot = robot_of(task)
         self.urdf = UrdfModel.load(self.robot.urdf)
         self.kin = ArmKinematics(self.urdf, self.robot.base_link, self.robot.tool_link)
@@ -107,13 +242,18 @@ class Scene:
     footprint = staticmethod(box_footprint)
 
     def rest_position(self, obj: dict[str, Any]) -> np.ndarray:
-        half = {"box": lambda s: s[2], "cylinder": lambda s: s[1], "sphere": lambda s: s[0]}[obj["shape"]](obj["size"])
-        return np.array([obj["xy"][0], obj["xy"][1], self.table_top + half])
+        return np.array([obj["xy"][0], obj["xy"][1], self.table_top + object_spec(obj).half_height])
 
-    def half_sizes(self) -> np.ndarray:
-        """(n_objects, 3) half extents of each object's bounding box, in its own frame."""
-        boxes = {"box": lambda s: s[:3], "cylinder": lambda s: [s[0], s[0], s[1]], "sphere": lambda s: [s[0]] * 3}
-        return np.array([boxes[o["shape"]](o["size"]) for o in self.objects], dtype=np.float64)
+    def half_sizes(self, objects: list[dict[str, Any]] | None = None) -> np.ndarray:
+        """(n_objects, 3) half extents of each object's bounding box, in its own frame (the task's objects, or
+        an episode's)."""
+        return np.array([bounding_half_sizes(o) for o in (objects or self.objects)], dtype=np.float64).reshape(-1, 3)
+
+    def episode_colors(self, objects: list[dict[str, Any]] | None) -> list[tuple[int, int, int, int]]:
+        """Each slot's colour in an episode: its drawn object's (an episode's ``objects``), else the task's."""
+        if self.drawn and objects:
+            return [rgba8(o["color"]) for o in objects]
+        return [self.colors[n] for n in self.object_names]
 
     def link_transforms(self, state: np.ndarray) -> np.ndarray:
         """World poses (T, n_links, 4, 4) of the arm's links for joint states (T, dof) in dataset order."""
@@ -140,6 +280,21 @@ def _shape_archetype(
     return rr.Cylinders3D.from_fields(
         lengths=[s[1] for s in sizes], radii=[s[0] for s in sizes], colors=color, fill_mode="solid", **pose
     )
+
+
+def part_archetype(part: DrawnPart) -> Any:
+    """One part as a Rerun archetype of one instance (solid, in the part's colour)."""
+    import rerun as rr
+
+    fields = {k: np.asarray(v)[None] if k not in ("albedo_factor",) else v for k, v in part.fields.items()}
+    if part.archetype == "Mesh3D":
+        return rr.Mesh3D(
+            vertex_positions=part.fields["vertex_positions"],
+            vertex_normals=part.fields["vertex_normals"],
+            triangle_indices=part.fields["triangle_indices"],
+            albedo_factor=part.fields["albedo_factor"],
+        )
+    return getattr(rr, part.archetype).from_fields(fill_mode="solid", **fields)
 
 
 def log_frustum(rec: rr.RecordingStream, path: str, cam: dict[str, Any], size: tuple[int, int] | None) -> None:
@@ -213,14 +368,17 @@ def log_scene(
         )
         rec.log(f"world/obstacles/{box['name']}", arch, static=True)
     for obj in scene.objects:
-        name, size, color = obj["name"], obj["size"], scene.colors[obj["name"]]
-        if obj["shape"] == "box":
-            arch = rr.Boxes3D(half_sizes=[size], colors=color, fill_mode="solid")
-        elif obj["shape"] == "cylinder":
-            arch = rr.Cylinders3D(lengths=[2 * size[1]], radii=[size[0]], colors=color, fill_mode="solid")
-        else:
-            arch = rr.Ellipsoids3D(half_sizes=[[size[0]] * 3], colors=color, fill_mode="solid")
-        rec.log(f"world/objects/{name}/shape", arch, static=True)  # posed per frame, see EpisodeColumns
+        if scene.drawn:  # each episode's own parts, at its first frame (EpisodeColumns); the fill mode stays
+            for entity, archetype in part_entities().items():
+                if archetype != "Mesh3D":
+                    fill = getattr(rr, archetype).from_fields(fill_mode="solid")
+                    rec.log(f"world/objects/{obj['name']}/{entity}", fill, static=True)
+            continue
+        parts = object_parts(obj)
+        for part in parts:
+            # the paper's objects are one primitive each, drawn at .../shape as always
+            entity = "shape" if len(parts) == 1 else part.entity
+            rec.log(f"world/objects/{obj['name']}/{entity}", part_archetype(part), static=True)  # posed per frame
     start = rr.Boxes3D(
         half_sizes=scene.half_sizes(),
         colors=[scene.colors[n] for n in scene.object_names],
@@ -261,6 +419,8 @@ def log_overview_background(rec: rr.RecordingStream, scene: Scene) -> None:
         colors.append((120, 120, 120, 255))
         labels.append(box["name"])
     rec.log("overview/outlines", rr.LineStrips3D(strips, colors=colors, labels=labels, radii=0.004), static=True)
+    if scene.drawn:  # the slots' stand-ins rest nowhere
+        return
     rec.log(
         "overview/rest_positions",
         rr.Points3D(

@@ -18,7 +18,7 @@ from ..sidecar import ATTEMPTS, read_attempts, read_run_info, sidecar_dir
 from .attempts import AttemptColumns, Tally
 from .columns import MAX_BUFFERED_FRAMES, EpisodeColumns, EpisodeData
 from .layout import blueprint, new_recording
-from .scene import Scene, log_scene
+from .scene import Scene, log_scene, objects_drawn
 
 if TYPE_CHECKING:
     import rerun as rr
@@ -125,6 +125,7 @@ class RerunSink(Sink):
                 start_index=self.columns.tally.frames,
                 attempt=int(row["attempt"]),
                 ee_targets=rollout.ee_targets,
+                objects=row.get("objects"),
             )
             self.episodes.add(ep)
         self.columns.add(row)
@@ -198,15 +199,16 @@ class RerunSink(Sink):
         if self._rec is not None:
             return
         if self.scene is None:
-            self.scene = Scene(self.task, self.joint_names)
             info = read_run_info(self.out)
+            self.scene = Scene(self.task, self.joint_names, drawn=objects_drawn(info))
             world = info.get("config", {}).get("world", {})
             self._fps = float(world.get("fps", self._fps))
             if "camera_height" in world:
                 self._image_size = (int(world["camera_height"]), int(world["camera_width"]))
             self._cameras = list(world.get("cameras") or [])
             self.columns = AttemptColumns(self.scene, self._tally)
-            self.episodes = EpisodeColumns(self.scene, self.frames)
+            # a resumed run's recording may hold episodes already (`EpisodeColumns`'s ``fresh``)
+            self.episodes = EpisodeColumns(self.scene, self.frames, fresh=not self._load_index()["segments"])
         index = self._load_index()
         self.dir.mkdir(parents=True, exist_ok=True)
         numbers = [int(p.stem.split("-")[1]) for p in self.dir.glob("segment-*.rrd")]

@@ -15,7 +15,7 @@ from ..sidecar import read_attempts, read_run_info, sidecar_dir
 from .attempts import AttemptColumns
 from .columns import MAX_BUFFERED_FRAMES, EpisodeColumns, EpisodeData
 from .layout import blueprint, new_recording
-from .scene import Scene, log_scene
+from .scene import Scene, log_scene, objects_drawn
 
 if TYPE_CHECKING:
     import pyarrow as pa
@@ -87,7 +87,7 @@ def episode_data(
     row: dict[str, Any] | None = None,
 ) -> EpisodeData:
     """One episode read back from the dataset's columns (``data``, sliced at ``rows``), with its images and, given
-    its sidecar row, its attempt and commanded waypoints."""
+    its sidecar row, its attempt, commanded waypoints and objects."""
     row = row or {}
     targets = row.get("ee_targets")
     n = rows.stop - rows.start
@@ -96,13 +96,14 @@ def episode_data(
         state=data["observation.state"][rows],
         ee_pos=data["observation.ee_pos"][rows],
         object_poses=data["observation.environment_state"][rows].reshape(n, n_objects, 7),
-        contacts=data["observation.contacts"][rows],
+        contacts=data["observation.contacts"][rows].reshape(n, n_objects),  # one object's: a column of scalars
         fps=fps,
         views=views,
         start_index=int(data["index"][rows.start]),
         timestamps=data["timestamp"][rows],
         attempt=row.get("attempt"),
         ee_targets=None if targets is None else np.asarray(targets),
+        objects=row.get("objects"),
     )
 
 
@@ -119,7 +120,7 @@ def view_dataset(
     root = Path(root)
     info = read_run_info(root)
     rows = read_attempts(root)
-    scene = Scene(info["task"], info.get("joint_names"))
+    scene = Scene(info["task"], info.get("joint_names"), drawn=objects_drawn(info))
     ds = load_dataset(root, info.get("repo_id", "local/babblegen"))
     total = ds.meta.total_episodes
     episodes = list(range(total)) if episodes is None else episodes
