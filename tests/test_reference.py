@@ -33,8 +33,21 @@ def world():
     w.close()
 
 
+@pytest.fixture(scope="module")
+def drawn_world():
+    """A World whose starts bring their own objects (the reference's ``objects_world`` settings)."""
+    w = WatchedWorld(get_task(REFERENCE["task"]), WorldSettings(**REFERENCE["objects_world"]))
+    warm_up(w, None)
+    yield w
+    w.close()
+
+
 def run(w: WatchedWorld, spec: dict):
-    return simulate(w, spec["waypoints"], spec["start"], spec["seed"], spec["attempt"])
+    return simulate(w, spec["waypoints"], spec["start"], spec["seed"], spec["attempt"], spec.get("objects"))
+
+
+PAPER = [r for r in REFERENCE["rollouts"] if "objects" not in r]
+DRAWN = [r for r in REFERENCE["rollouts"] if "objects" in r]
 
 
 def test_the_reference_is_made_with_the_default_settings():
@@ -42,13 +55,13 @@ def test_the_reference_is_made_with_the_default_settings():
 
 
 def test_the_reference_covers_every_kind_of_contact():
-    touches = [r["touches"] for r in REFERENCE["rollouts"]]
+    touches = [r["touches"] for r in PAPER]
     names = get_task(REFERENCE["task"]).object_names
     every_pair = {f"{a}-{b}" for i, a in enumerate(names) for b in names[i + 1 :]}
     assert {p for t in touches for p in t["pairs"]} == every_pair
     assert {o for t in touches for o in t["arm"]} >= set(names) - {"ball"}  # the ball stands out of reach
     assert any(t["can_toppled"] for t in touches)
-    assert {r["start"] is None for r in REFERENCE["rollouts"]} == {True, False}, "fixed and varied starts"
+    assert {r["start"] is None for r in PAPER} == {True, False}, "fixed and varied starts"
 
 
 def differences(w: WatchedWorld, rollouts: list[dict]) -> list[str]:
@@ -66,7 +79,22 @@ def differences(w: WatchedWorld, rollouts: list[dict]) -> list[str]:
 
 
 def test_canonical_rollouts_record_the_reference_values_to_the_bit(world):
-    differ = differences(world, REFERENCE["rollouts"])
+    differ = differences(world, PAPER)
+    assert not differ, f"differ from tests/reference/canonical.json: {'; '.join(differ)}; {REGENERATE}"
+
+
+def test_rollouts_with_drawn_objects_record_the_reference_values_to_the_bit(drawn_world):
+    """Drawn objects, replayed from the stored spec: the objects of several shapes touched, pushed into each other."""
+    from babblegen.objects import ObjectSampler
+    from babblegen.scene import ObjectSpec
+
+    assert DRAWN, "the reference holds rollouts with drawn objects"
+    for spec in DRAWN:  # the stored spec is what the run drew
+        drawn = ObjectSampler("varied", len(spec["objects"]), spec["seed"]).draw(spec["attempt"])
+        assert tuple(ObjectSpec.from_factors(o) for o in spec["objects"]) == drawn
+    assert len({o["shape"] for r in DRAWN for o in r["objects"]}) >= 4
+    assert any(t["touches"]["pairs"] for t in DRAWN) and all(t["touches"]["arm"] for t in DRAWN)
+    differ = differences(drawn_world, DRAWN)
     assert not differ, f"differ from tests/reference/canonical.json: {'; '.join(differ)}; {REGENERATE}"
 
 

@@ -3,13 +3,14 @@ record, which tests/test_reference.py re-simulates and compares to the bit.
 
     .venv/bin/python tests/reference/make_reference.py
 
-The rollouts, together: the arm touching every object, every pair of objects touching each other, pushes and the
-can toppled; fixed and varied starts. Each is a command (waypoints in normalised workspace coordinates, with a
-varied start's layout or none), seeded with a run seed and an attempt index as in a run, simulated with the default
-settings and its first and last frames rendered. Recorded per rollout (`babblegen.fingerprint.rollout_digests`):
-sha256 of its joint states, commanded joints, tool positions, object poses and contacts (float32 bytes), of its
-after image and of the head camera's instance masks at both ends, and its behaviour descriptor (hex) with the
-descriptor a run with its starts uses. Beside them, what it touched (the arm, object pairs) and whether the can fell.
+The rollouts, together: the arm touching every object, every pair of objects touching each other, pushes and the can
+toppled; fixed and varied starts; drawn objects (``--objects varied``), stored whole with their start. Each is a
+command (waypoints in normalised workspace coordinates, with a varied start's layout or none), seeded with a run
+seed and an attempt index as in a run, simulated with the default settings and its first and last frames rendered.
+Recorded per rollout (`babblegen.fingerprint.rollout_digests`): sha256 of its joint states, commanded joints, tool
+positions, object poses and contacts (float32 bytes), of its after image and of the head camera's instance masks at
+both ends, and its behaviour descriptor (hex) with the descriptor a run with its starts uses. Beside them, what it
+touched (the arm, object pairs) and whether the can fell.
 
 Regenerate only when recorded values are meant to change (a new simulator, new default settings), and say why in
 the commit.
@@ -82,13 +83,36 @@ ROLLOUTS: dict[str, tuple[list, list | None, int, int]] = {
 }
 
 
-def simulate(world, waypoints, layout, seed: int, attempt: int):
-    """One canonical rollout, seeded as attempt ``attempt`` of a run of seed ``seed``."""
+# drawn objects (--objects varied, four slots): name -> (waypoints, run seed, attempt), movements of an earlier run
+# from the start it drew for that attempt; the start's layout and objects are stored whole in the reference
+OBJECT_SETTINGS = {"objects": "varied", "num_objects": 4}
+OBJECT_ROLLOUTS: dict[str, tuple[list, int, int]] = {
+    "drawn objects: a sphere pushed into a hull and two dumbbells": (
+        [[0.23064647951565842, 0.9814554881995063, 0.2790528458285658]],
+        1,
+        178,
+    ),
+    "drawn objects: a capsule pushed over into a cylinder": (
+        [
+            [0.199397461796393, 0.352481443504243, 0.2252499741071704],
+            [-0.21313834733405995, 1.0569540473898018, -0.4070915767487161],
+        ],
+        1,
+        261,
+    ),
+}
+
+
+def simulate(world, waypoints, layout, seed: int, attempt: int, objects: list | None = None):
+    """One canonical rollout, seeded as attempt ``attempt`` of a run of seed ``seed``; ``objects``: the start's own
+    (factors, `ObjectSpec.factors`), None: the task's."""
     from babblegen.evaluation import seeded_rollout
+    from babblegen.scene import ObjectSpec
     from babblegen.world.rollout import Command
 
     start = None if layout is None else np.asarray(layout, dtype=np.float64)
-    command = Command("ee_waypoints", np.asarray(waypoints, dtype=np.float64), start)
+    drawn = None if objects is None else tuple(ObjectSpec.from_factors(o) for o in objects)
+    command = Command("ee_waypoints", np.asarray(waypoints, dtype=np.float64), start, drawn)
     return seeded_rollout(world, command, seed, attempt, defer_render=True)
 
 
@@ -107,11 +131,15 @@ def observed(world, rollout) -> dict:
     from test_contacts import CAN, tilt
 
     names = world.task.object_names
-    return {
+    out = {
         "arm": [names[i] for i in np.flatnonzero(rollout.touched)],
         "pairs": sorted(f"{names[a]}-{names[b]}" for a, b in world.pairs),
-        "can_toppled": bool(tilt(rollout.final_poses[CAN, 3:]) > 80),
     }
+    if "can" in names:
+        out["can_toppled"] = bool(tilt(rollout.final_poses[CAN, 3:]) > 80)
+    else:
+        out["toppled"] = [n for n, pose in zip(names, rollout.final_poses, strict=True) if tilt(pose[3:]) > 60]
+    return out
 
 
 def main() -> None:
@@ -145,7 +173,33 @@ def main() -> None:
         )
         print(name, rollouts[-1]["touches"])
     world.close()
-    head = json.dumps({"task": "noveb_tabletop", "world": settings.to_dict()})[:-1]
+    from babblegen.objects import ObjectSampler
+    from babblegen.starts import StartSampler
+
+    drawn_settings = WorldSettings(**OBJECT_SETTINGS)
+    world = WatchedWorld(get_task("noveb_tabletop"), drawn_settings)
+    warm_up(world, None)
+    for name, (waypoints, seed, attempt) in OBJECT_ROLLOUTS.items():
+        start = StartSampler(world.task, seed, ObjectSampler("varied", 4, seed)).draw(attempt)
+        objects, layout = [o.factors() for o in start.objects], start.layout.tolist()
+        rollout = simulate(world, waypoints, layout, seed, attempt, objects)
+        assert rollout.feasible, (name, rollout.reason)
+        rollouts.append(
+            {
+                "name": name,
+                "waypoints": waypoints,
+                "start": layout,
+                "objects": objects,
+                "seed": seed,
+                "attempt": attempt,
+                "descriptor_name": "change16",
+                "touches": observed(world, rollout),
+                "digests": rollout_digests(rollout, make_descriptor("change16")),
+            }
+        )
+        print(name, rollouts[-1]["touches"])
+    world.close()
+    head = json.dumps({"task": "noveb_tabletop", "world": settings.to_dict(), "objects_world": OBJECT_SETTINGS})[:-1]
     lines = ",\n".join(json.dumps(r) for r in rollouts)
     OUT.write_text(f'{head}, "rollouts": [\n{lines}\n]}}\n')  # one line per rollout
     print(f"{OUT}: {OUT.stat().st_size} bytes")
