@@ -242,6 +242,9 @@ def main() -> None:
     p.add_argument("--attempts", type=int, default=150)
     p.add_argument("--seed", type=int, default=1)
     p.add_argument("--starts", choices=["fixed", "varied"], default="fixed")
+    p.add_argument(
+        "--objects", choices=["paper", "varied", "heldout"], default="paper", help="the run's object set [paper]"
+    )
     p.add_argument("--pcm", choices=["on", "off"], default="off", help="PhysX's persistent contact manifolds [off]")
     p.add_argument("--depth", action="store_true", help="record depth maps too (x265 encodes them)")
     p.add_argument("--video-codec", default=None, help="h264 (the default) or libsvtav1")
@@ -272,6 +275,7 @@ def main() -> None:
             return
         generate = ["--out", str(workdir / "run"), "--max-attempts", str(args.attempts), "--seed", str(args.seed)]
         generate += ["--starts", args.starts, "--workers", "1", "--no-rerun", "--no-progress"]
+        generate += ["--objects", args.objects]
         if args.depth:
             generate.append("--depth")
         if args.video_codec:
