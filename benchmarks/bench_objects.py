@@ -39,6 +39,7 @@ def main() -> None:
     rng = np.random.default_rng(0)
     seconds = {n: [] for n in worlds}
     resets = {n: [] for n in worlds}
+    frames = {n: [] for n in worlds}
     for i in range(args.movements):
         genome = rng.uniform(0, 1, (int(rng.integers(1, 5)), 3))
         for name in ("paper", "varied") if i % 2 == 0 else ("varied", "paper"):
@@ -48,12 +49,16 @@ def main() -> None:
             if rollout.feasible:
                 seconds[name].append(time.perf_counter() - t)
                 resets[name].append(rollout.timings.get("reset", 0.0))
+                frames[name].append(len(rollout.frames))
     for name in worlds:
         s = np.array(seconds[name])
+        ms = s.sum() / sum(frames[name]) * 1000
         print(f"{name:7s} {len(s):3d} executed: {s.mean():.3f} s per episode (median {np.median(s):.3f}), "
-              f"reset {np.mean(resets[name]):.3f} s")  # fmt: skip
+              f"{ms:.1f} ms per frame, reset {np.mean(resets[name]):.3f} s")  # fmt: skip
     ratio = np.mean(seconds["varied"]) / np.mean(seconds["paper"])
     print(f"varied / paper seconds per executed episode: {ratio:.2f}x")
+    per_frame = (np.sum(seconds["varied"]) / sum(frames["varied"])) / (np.sum(seconds["paper"]) / sum(frames["paper"]))
+    print(f"varied / paper seconds per frame: {per_frame:.2f}x")
     for world in worlds.values():
         world.close()
 
