@@ -86,6 +86,7 @@ def synthetic_frames(length: int, seed: int, layout: str = "head") -> Frames:
         object_poses=f32(length, 4, 7),
         contacts=(rng.random((length, 4)) > 0.8).astype(np.float32),
         images=images,
+        object_contacts=(rng.exponential(0.05, (length, 14)) * (rng.random((length, 14)) > 0.6)).astype(np.float32),
     )
 
 

@@ -53,6 +53,9 @@ class Frames:
     end_views: dict[str, np.ndarray] | None = None
     # (T, 4, 4) OpenCV cam2world per frame of each camera that moves (a wrist camera)
     camera_poses: dict[str, np.ndarray] | None = None
+    # (T, n_pairs) N s: each pair's summed contact impulse since the previous frame (frame 0: zeros), the pairs of
+    # `babblegen.contact_events.contact_pairs` (every two objects, each object with the table, with the floor)
+    object_contacts: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.state)
