@@ -154,7 +154,9 @@ class SegmentWriter:
         (data_chunk, data_file), (video_chunk, video_file) = self.next_file["data"], self.next_file["video"]
         rows, all_stats = [], []
         for episode, task, pos, video_start, own in zip(episodes, tasks, positions, video_starts, extra, strict=True):
-            stats = {**episode.stats, **numeric_stats(pos, self.meta.features)}
+            # the dataset's own features: a run resumed from a dataset made before a feature existed leaves it out
+            own_stats = {k: v for k, v in episode.stats.items() if k in self.meta.features}
+            stats = {**own_stats, **numeric_stats(pos, self.meta.features)}
             all_stats.append(stats)
             row = {
                 "episode_index": int(pos["episode_index"][0]),

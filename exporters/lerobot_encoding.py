@@ -20,7 +20,7 @@ import numpy as np
 
 from babblegen.config import RunConfig
 from babblegen.exporters.lerobot_codecs import depth_encoder, encoder_options, video_encoder
-from babblegen.exporters.lerobot_schema import HEAD, image_sources
+from babblegen.exporters.lerobot_schema import HEAD, OBJECT_CONTACTS, image_sources
 from babblegen.exporters.lerobot_stats import image_stats, numeric_stats
 from babblegen.world.rollout import Frames
 
@@ -62,6 +62,8 @@ def frame_columns(frames: Frames, fps: int, features: dict) -> dict[str, np.ndar
         "observation.environment_state": frames.object_poses.reshape(n, -1),
         "observation.contacts": frames.contacts,
     }
+    if OBJECT_CONTACTS in features:  # a dataset written before the pairs' impulses were recorded has none
+        recorded[OBJECT_CONTACTS] = frames.object_contacts
     for key in features:
         if key.startswith("observation.cam2world."):
             recorded[key] = frames.camera_poses[key.removeprefix("observation.cam2world.")].reshape(n, 16)

@@ -66,6 +66,7 @@ class ReferenceWriter:
                     "observation.ee_pos": frames.ee_pos[t],
                     "observation.environment_state": env_state[t],
                     "observation.contacts": frames.contacts[t],
+                    "observation.object_contacts": frames.object_contacts[t],
                     "task": task,
                 }
             )

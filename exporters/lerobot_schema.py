@@ -4,6 +4,7 @@ parameters, depth conventions, mask ids), as DESIGN.md and docs/dataset.md descr
 from __future__ import annotations
 
 HEAD = "observation.images.head"
+OBJECT_CONTACTS = "observation.object_contacts"  # N s per pair since the previous frame (`babblegen.contact_events`)
 KINDS = ("rgb", "depth", "segmentation")
 IMAGE_NAMES = ["height", "width", "channels"]
 
@@ -77,7 +78,10 @@ def features(
 ) -> dict:
     """The dataset schema (see DESIGN.md): the cameras' images (:func:`camera_features`; without ``cameras``, the
     head camera's colour video alone, as runs stored before cameras were a setting), joints, commanded joints,
-    tool point, objects, contacts."""
+    tool point, objects, the arm's contacts, and the contact impulses between objects, the table and the floor
+    (`babblegen.contact_events`)."""
+    from babblegen.contact_events import pair_names
+
     pose_fields = ("x", "y", "z", "qw", "qx", "qy", "qz")
     if cameras is None:
         images = {HEAD: {"dtype": "video", "shape": (height, width, 3), "names": IMAGE_NAMES}}
@@ -100,6 +104,11 @@ def features(
             "dtype": "float32",
             "shape": (len(object_names),),
             "names": list(object_names),
+        },
+        OBJECT_CONTACTS: {
+            "dtype": "float32",
+            "shape": (len(pair_names(object_names)),),
+            "names": pair_names(object_names),
         },
     }
 

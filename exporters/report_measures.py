@@ -2,7 +2,8 @@
 `Run` (the table as read), `summarize` (one run's summary), `diversity` (the dataset measures) and `compare`.
 
 A contact is an executed movement in which the arm touched at least one object (the paper's count); per
-object, an executed movement in which the arm touched that object.
+object, an executed movement in which the arm touched that object. An object contact is an executed movement with
+a contact event between two objects (one pushed into another; `babblegen.contact_events`), recorded by the world.
 """
 
 from __future__ import annotations
@@ -14,6 +15,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from babblegen.contact_events import had_object_contact
 
 from .sidecar import CLONES, read_attempts, read_run_info
 
@@ -202,6 +205,20 @@ def diversity(rows: list[dict[str, Any]], object_names: list[str]) -> dict[str, 
     }
 
 
+def object_contacts(rows: list[dict[str, Any]]) -> dict[str, Any]:
+    """The executed rows' recorded contact events: ``object_contact_episodes``, those with a contact event between
+    two objects (one object pushing another), and ``contact_events_per_pair``, per pair (with the table or the
+    floor too) the episodes in which its contact began. None for runs made before contact events were recorded."""
+    recorded = [r for r in rows if r.get("feasible") and had_object_contact(r) is not None]
+    if not recorded:
+        return {"object_contact_episodes": None, "contact_events_per_pair": None}
+    pairs = Counter(name for r in recorded for name in r["object_contacts"])
+    return {
+        "object_contact_episodes": sum(bool(had_object_contact(r)) for r in recorded),
+        "contact_events_per_pair": dict(sorted(pairs.items())),
+    }
+
+
 def summarize(run: Run) -> dict[str, Any]:
     """The summary numbers of one run."""
     rows, executed = run.rows, run.executed
@@ -241,6 +258,7 @@ def summarize(run: Run) -> dict[str, Any]:
         "worker_time_s": sum(_worker_seconds(r) for r in rows),  # all workers
         "infeasible_reasons": dict(sorted(reasons.items(), key=lambda kv: -kv[1])),
         "clones": len(run.clones),
+        **object_contacts(executed),
         **diversity(rows, run.object_names),
     }
 

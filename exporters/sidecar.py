@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from babblegen.contact_events import contact_events
 from babblegen.store import (  # noqa: F401  (the sidecar's file names, re-exported for readers)
     CHECKPOINT,
     PREVIOUS_CHECKPOINT,
@@ -144,6 +145,8 @@ def attempt_row(
             final_poses=dict(zip(names, recorded_poses(rollout.final_poses), strict=True)),
             final_ee_pos=_final_tool_point(rollout),
         )
+        if rollout.frames.object_contacts is not None:  # the pairs whose contact began during the episode
+            row["object_contacts"] = contact_events(rollout.frames.object_contacts, names)
     return row
 
 

@@ -166,3 +166,64 @@ def test_the_ball_rolls(worlds):
     assert abs(np.median(turned[moving] / travelled[moving]) - 1) < 0.1
     assert abs(turned[moving].sum() / travelled[moving].sum() - 1) < 0.15
     assert_nothing_sinks(w, r)
+
+
+# The canonical rollout that pushes the blue box into the can (tests/reference/make_reference.py): the arm first
+# touches the blue box at frame 7 and the box then hits the can; the gray box stands within PhysX's contact offset
+# of the blue box but is never pushed.
+BLUE_INTO_CAN = (
+    [[0.7143345840533009, 0.5931833203475035, 0.1520972178810357]],
+    np.array(
+        [
+            [0.7171300292176821, 0.07577778841060984, -0.30301337838367504],
+            [0.7894718902198021, -0.03888690125265548, 0.5697390716175126],
+            [0.7510270494746655, -0.17338552842258695, -0.8827742835629269],
+            [1.0995614578541069, -0.18842237203178394, -1.5315537316308678],
+        ]
+    ),
+    1,
+    361,
+)
+GRAVITY = 9.81  # m/s^2, ManiSkill's scene default
+
+
+def test_one_object_pushed_into_another_is_a_contact_event(worlds):
+    from babblegen.contact_events import contact_events, pair_names
+
+    w = worlds[False]
+    waypoints, layout, seed, attempt = BLUE_INTO_CAN
+    r = seeded_rollout(w, Command("ee_waypoints", np.asarray(waypoints), layout), seed, attempt, defer_render=True)
+    assert r.feasible, r.reason
+    impulses = r.frames.object_contacts
+    names = pair_names(w.object_names)
+    assert impulses.shape == (len(r.frames), 14) and impulses.dtype == np.float32
+    assert (impulses[0] == 0).all()  # nothing happened before the first frame
+    column = dict(zip(names, impulses.T, strict=True))
+
+    arm_first = int(np.flatnonzero(r.frames.contacts[:, BLUE])[0])
+    hit = np.flatnonzero(column["can|blue_box"] > 0)
+    assert arm_first < hit[0] < len(r.frames) - 1, (arm_first, hit)
+    assert column["can|blue_box"].sum() > 0
+    for name in names:  # no other two objects touched, nothing fell to the floor
+        if name != "can|blue_box" and not name.endswith("|table"):
+            assert (column[name] == 0).all(), name
+    # the objects the arm never touched rest on the table: its impulse per frame is their weight times 1 / fps
+    for i in (GRAY, BALL):
+        weight = w.task.objects[i].mass * GRAVITY / w.settings.fps
+        rest = column[f"{w.object_names[i]}|table"][1:]
+        np.testing.assert_allclose(rest, weight, rtol=0.01)
+    events = contact_events(impulses, w.object_names)
+    assert list(events) == ["can|blue_box"]  # the table's contacts were there from the start
+    assert events["can|blue_box"]["first_frame"] == hit[0]
+
+    # reusing sleeping objects' impulses records what reading every contact records, to the bit
+    scan = w._touching
+    w._touching = lambda: (w._asleep.clear(), scan())[1]
+    try:
+        again = seeded_rollout(
+            w, Command("ee_waypoints", np.asarray(waypoints), layout), seed, attempt, defer_render=True
+        )
+    finally:
+        del w._touching
+    np.testing.assert_array_equal(again.frames.object_contacts, impulses)
+    np.testing.assert_array_equal(again.frames.object_poses, r.frames.object_poses)

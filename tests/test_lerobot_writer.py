@@ -86,6 +86,7 @@ def synthetic_frames(length: int, seed: int, layout: str = "head") -> Frames:
         object_poses=f32(length, 4, 7),
         contacts=(rng.random((length, 4)) > 0.8).astype(np.float32),
         images=images,
+        object_contacts=(rng.exponential(0.05, (length, 14)) * (rng.random((length, 14)) > 0.6)).astype(np.float32),
     )
 
 
@@ -245,3 +246,22 @@ def test_the_data_table_is_byte_for_byte_the_one_hugging_face_encodes():
     assert files[0] == files[1]
     images = hf_datasets.Features({"x": hf_datasets.Image()})
     assert arrow_table({"x": np.zeros((2, 4, 4, 3), np.uint8)}, images) is None  # left to Hugging Face
+
+
+def test_a_dataset_written_before_object_contacts_takes_episodes_that_record_them(tmp_path):
+    """A run resumed from a dataset made before ``observation.object_contacts``: its episodes keep the dataset's own
+    features (the new column and its statistics left out), and it loads."""
+    from babblegen.exporters.lerobot_schema import OBJECT_CONTACTS
+
+    old = {k: v for k, v in features(JOINTS, OBJECTS, SIDE, SIDE).items() if k != OBJECT_CONTACTS}
+    writer = SegmentWriter.create(tmp_path / "old", "test/old", FPS, old, "pr2_arm", "h264")
+    writer.add(encode_episode(synthetic_frames(6, 0), FPS, writer.features, "h264"), TASK)
+    writer.flush()
+    new_schema = {**writer.features, **{OBJECT_CONTACTS: features(JOINTS, OBJECTS, SIDE, SIDE)[OBJECT_CONTACTS]}}
+    writer.add(encode_episode(synthetic_frames(7, 1), FPS, new_schema, "h264"), TASK)
+    writer.flush()
+    ds = load_dataset(tmp_path / "old", "test/old")
+    assert ds.meta.total_episodes == 2 and ds.num_frames == 13
+    assert OBJECT_CONTACTS not in ds.meta.features and OBJECT_CONTACTS not in ds.meta.stats
+    assert OBJECT_CONTACTS not in ds.hf_dataset.column_names
+    ds.meta.episodes.to_pandas()  # every episode row readable together

@@ -55,6 +55,9 @@ class Frames:
     camera_poses: dict[str, np.ndarray] | None = None
     # the objects the episode ran with, when its start drew them (None: the task's): what its frames are rendered of
     objects: tuple | None = None
+    # (T, n_pairs) N s: each pair's summed contact impulse since the previous frame (frame 0: zeros), the pairs of
+    # `babblegen.contact_events.contact_pairs` (every two objects, each object with the table, with the floor)
+    object_contacts: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.state)
