@@ -283,7 +283,7 @@ def test_each_episode_s_objects_set_its_frames_heights_and_strata():
     """The same poses with a flat box (symmetric under a half turn only) in the first slot instead of the cube:
     turning it a quarter turn changes what it sees, not the cube's; its property inputs differ. Ending 3.5 cm below
     the cube's resting height, the cube has left the table top (over 2 cm below it); the flat box, 6 cm tall, rests
-    2 cm lower than the cube and has only moved."""
+    2 cm lower than the cube and has only moved; starting there, the cube has not left."""
     flat = ObjectSpec("box", "box", (0.04, 0.02, 0.03), GRAY, 0.096, (0, 0))
     props = np.stack([SCENE.properties, SCENE.properties])
     props[1, 0] = object_vector(flat)
@@ -308,6 +308,9 @@ def test_each_episode_s_objects_set_its_frames_heights_and_strata():
     e = episodes([REST, REST], [[low, REST[1], REST[2]]] * 2)
     e.objects = props
     assert [STRATA[s] for s in outcomes(e)[1]] == ["toppled_rolled_off", "one_object"]
+    # a cube that settled 3.5 cm below its upright resting height (as a hull may, on another face) and stays there
+    e = episodes([[low, REST[1], REST[2]]], [[low, REST[1], REST[2]]])
+    assert STRATA[outcomes(e)[1][0]] == "nothing_moved"
 
 
 def sliding(masses: list[float], rng: np.random.Generator, frames: int = 6) -> EpisodeSet:

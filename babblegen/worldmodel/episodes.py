@@ -396,7 +396,8 @@ def object_distance_moved(episodes: EpisodeSet) -> np.ndarray:
 def outcomes(episodes: EpisodeSet) -> tuple[np.ndarray, np.ndarray]:
     """(moved (E, K) bool, stratum (E,) index into `STRATA`) of each episode, from its first and last frames: an
     object moved when displaced over `MOVED`; an episode is ``toppled_rolled_off`` when an object toppled (tilted
-    over `TOPPLED`), a round object that cannot stand tilted (a sphere) moved, or an object left the table top;
+    over `TOPPLED`), a round object that cannot stand tilted (a sphere) moved, or an object left the table top
+    (beyond its edges, or untoppled over 2 cm below its upright resting height and its start, whichever is lower);
     else ``several_objects`` when two or more moved, ``one_object`` when one did, ``nothing_moved`` otherwise."""
     scene = episodes.scene
     first, final = episodes.first, episodes.final
@@ -404,7 +405,9 @@ def outcomes(episodes: EpisodeSet) -> tuple[np.ndarray, np.ndarray]:
     toppled = np.abs(tilt_of(final[..., 3:]) - tilt_of(first[..., 3:])) > TOPPLED
     rolled = moved & episodes.spheres
     x0, x1, y0, y1 = scene.table
-    off = (final[..., 2] < scene.top + episodes.half_heights - 0.02) & ~toppled
+    # below where it rested: an object can settle lower than its upright resting height (a hull on another face)
+    rest = np.minimum(scene.top + episodes.half_heights, first[..., 2])
+    off = (final[..., 2] < rest - 0.02) & ~toppled
     off |= (final[..., 0] < x0) | (final[..., 0] > x1) | (final[..., 1] < y0) | (final[..., 1] > y1)
     stratum = np.minimum(moved.sum(axis=1), 2)
     stratum[(toppled | rolled | off).any(axis=1)] = 3
