@@ -121,7 +121,7 @@ def varied_objects_dataset(tmp_path_factory) -> Path:
 @pytest.mark.sim
 def test_varied_objects_are_read_per_episode_and_planned_with(varied_objects_dataset):
     """Each episode's objects come from its sidecar row; planning executes the goal episode's genome from its start
-    with its objects and ends exactly where the recorded episode ended."""
+    with its objects and ends exactly where the recorded episode ended, every object."""
     from babblegen.exporters.sidecar import read_attempts
     from babblegen.scene import ObjectSpec
     from babblegen.worldmodel.episodes import object_vector, read_dataset
@@ -141,6 +141,15 @@ def test_varied_objects_are_read_per_episode_and_planned_with(varied_objects_dat
     goals = [int(np.flatnonzero((test.final[:, k, :2] == xy).all(axis=1))[0]) for k, xy in zip(task.goal_object,
              task.goal_xy, strict=True)]  # fmt: skip
     np.testing.assert_array_equal(task.objects, test.objects[goals])
+    # every object ends exactly where it was recorded, height and yaw too; the slots' stand-ins would not
+    from babblegen.worldmodel.model import object_state
+    from babblegen.worldmodel.planning import _rollout
+
+    c = test.commands[0]
+    job = [str(test.source[0]), int(test.attempt[0]), c["genome"], c["layout"], c["objects"]]
+    np.testing.assert_array_equal(_rollout(tuple(job))[2], object_state(test.final[0]))
+    stand_ins = _rollout(tuple(job[:4] + [None]))[2]
+    assert np.abs(stand_ins[:, 2] - object_state(test.final[0])[:, 2]).max() > 0.002
 
 
 @pytest.mark.sim
