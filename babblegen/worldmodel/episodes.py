@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from babblegen.config import ConfigError
+from babblegen.scene import SHAPES, ObjectSpec
 
 ACTION, STATE, POSES = "action", "observation.state", "observation.environment_state"
 COLUMNS = (ACTION, STATE, POSES)
@@ -29,15 +30,89 @@ class EvaluationError(ConfigError):
     """Bad input to the evaluation: reported on one line, exit status 2."""
 
 
+# An object's properties as the world model reads them (`object_vector`): one number each, SI units.
+PROPERTIES = (
+    *(f"shape_{s}" for s in SHAPES),  # one-hot over babblegen.scene.SHAPES
+    "footprint_radius",  # m: the upright circle around its horizontal extent, whatever its yaw
+    "half_height",  # m: its origin's height above the table when it rests upright
+    "half_extent_x",  # m: its bounding box's half extents in its own frame
+    "half_extent_y",
+    "half_extent_z",
+    "volume",  # m^3
+    "mass",  # kg
+    "density",  # kg/m^3
+    "static_friction",
+    "dynamic_friction",
+    "restitution",
+    "yaw_symmetry",  # rad: the turn about the vertical after which it looks the same (0: any turn)
+)
+PROPERTY = {name: i for i, name in enumerate(PROPERTIES)}
+
+
+def yaw_symmetry(spec: ObjectSpec) -> float:
+    """The turn about the vertical after which an object looks the same: 0 for any turn (upright cylinders,
+    spheres), pi / 2 for a box of square footprint, pi for other boxes and for what lies along x (capsules,
+    dumbbells), 2 pi (none) for ells, tees and hulls."""
+    if spec.shape in ("cylinder", "sphere"):
+        return 0.0
+    if spec.shape == "box":
+        return float(np.pi / 2 if np.isclose(spec.size[0], spec.size[1]) else np.pi)
+    if spec.shape in ("capsule", "dumbbell"):
+        return float(np.pi)
+    return float(2 * np.pi)
+
+
+def half_extents(spec: ObjectSpec) -> np.ndarray:
+    """(3,) the half extents of the object's bounding box in its own frame, over its parts."""
+    high = np.zeros(3)
+    for part in spec.parts():
+        s = part.size
+        if part.kind == "box":
+            half = np.array(s)
+        elif part.kind == "cylinder":  # axis z
+            half = np.array([s[0], s[0], s[1]])
+        elif part.kind == "sphere":
+            half = np.full(3, s[0])
+        elif part.kind == "capsule":  # axis x
+            half = np.array([s[0] + s[1], s[0], s[0]])
+        else:  # hull
+            half = np.abs(np.asarray(part.vertices)).max(axis=0)
+        high = np.maximum(high, np.abs(part.offset) + half)
+    return high
+
+
+def object_vector(spec: ObjectSpec) -> np.ndarray:
+    """The object's geometry and material as `PROPERTIES` lists them."""
+    out = np.zeros(len(PROPERTIES))
+    out[PROPERTY[f"shape_{spec.shape}"]] = 1.0
+    out[PROPERTY["footprint_radius"]] = spec.footprint_radius
+    out[PROPERTY["half_height"]] = spec.half_height
+    out[PROPERTY["half_extent_x"] : PROPERTY["half_extent_z"] + 1] = half_extents(spec)
+    out[PROPERTY["volume"]] = spec.volume
+    out[PROPERTY["mass"]] = spec.mass
+    out[PROPERTY["density"]] = spec.density
+    out[PROPERTY["static_friction"]] = spec.static_friction
+    out[PROPERTY["dynamic_friction"]] = spec.dynamic_friction
+    out[PROPERTY["restitution"]] = spec.restitution
+    out[PROPERTY["yaw_symmetry"]] = yaw_symmetry(spec)
+    return out
+
+
+def object_spec(data: dict) -> ObjectSpec:
+    """An object from its factors (a sidecar row's) or from run.json's task (whose objects, in runs made before
+    materials were recorded, have PhysX's default material)."""
+    defaults = {"static_friction": 0.3, "dynamic_friction": 0.3, "restitution": 0.0, "color": (0.5, 0.5, 0.5, 1.0)}
+    return ObjectSpec.from_factors({**defaults, **data})
+
+
 @dataclass(frozen=True)
 class Scene:
-    """What the evaluation needs to know of a dataset's task (from its ``run.json``): the objects' names, shapes
-    and sizes, and the table top's extent and height."""
+    """What the evaluation needs to know of a dataset's task (from its ``run.json``): the task's objects (the
+    paper's, or the stand-ins in the slots of a run that draws its objects: each episode's own are in
+    `EpisodeSet.objects`), and the table top's extent and height."""
 
     task: str
-    objects: tuple[str, ...]
-    shapes: tuple[str, ...]
-    sizes: tuple[tuple[float, ...], ...]
+    specs: tuple[ObjectSpec, ...]
     table: tuple[float, float, float, float]  # x0, x1, y0, y1 of the table top, metres
     top: float  # the table top's height, metres
     robot: str
@@ -46,29 +121,36 @@ class Scene:
     def from_run(cls, run: dict) -> Scene:
         task = run["task"]
         c, h = task["table"]["center"], task["table"]["half_extents"]
-        objects = task["objects"]
         return cls(
             task=task["name"],
-            objects=tuple(o["name"] for o in objects),
-            shapes=tuple(o["shape"] for o in objects),
-            sizes=tuple(tuple(float(v) for v in o["size"]) for o in objects),
+            specs=tuple(object_spec(o) for o in task["objects"]),
             table=(c[0] - h[0], c[0] + h[0], c[1] - h[1], c[1] + h[1]),
             top=float(c[2] + h[2]),
             robot=task["robot_uid"],
         )
 
     @property
+    def objects(self) -> tuple[str, ...]:
+        """The objects' names (slots, where the run draws its objects)."""
+        return tuple(o.name for o in self.specs)
+
+    @property
+    def shapes(self) -> tuple[str, ...]:
+        return tuple(o.shape for o in self.specs)
+
+    @property
+    def properties(self) -> np.ndarray:
+        """(K, P) the task's objects' `object_vector`s."""
+        return np.stack([object_vector(o) for o in self.specs])
+
+    @property
     def half_heights(self) -> np.ndarray:
-        index = {"box": 2, "cylinder": 1, "sphere": 0}
-        return np.array([size[index[shape]] for shape, size in zip(self.shapes, self.sizes, strict=True)])
+        return np.array([o.half_height for o in self.specs])
 
     @property
     def yaw_symmetry(self) -> np.ndarray:
         """Per object, the turn about the vertical after which it looks the same (0: any turn, round objects)."""
-        out = []
-        for shape, size in zip(self.shapes, self.sizes, strict=True):
-            out.append(0.0 if shape != "box" else (np.pi / 2 if np.isclose(size[0], size[1]) else np.pi))
-        return np.array(out)
+        return np.array([yaw_symmetry(o) for o in self.specs])
 
 
 @dataclass
@@ -85,9 +167,31 @@ class EpisodeSet:
     actions: list[np.ndarray] = field(repr=False)  # per episode (T, 7) commanded joints, radians
     states: list[np.ndarray] = field(repr=False)  # per episode (T, 7) the arm's joints
     poses: list[np.ndarray] = field(repr=False)  # per episode (T, K, 7) object poses: x, y, z, qw, qx, qy, qz
+    # (E, K, P) per episode and slot the object's `object_vector` (None: the scene's objects in every episode)
+    objects: np.ndarray | None = field(default=None, repr=False)
+
+    def __post_init__(self) -> None:
+        if self.objects is None:
+            props = self.scene.properties
+            self.objects = np.repeat(props[None], len(self.attempt), axis=0)
 
     def __len__(self) -> int:
         return len(self.attempt)
+
+    @property
+    def half_heights(self) -> np.ndarray:
+        """(E, K) each object's resting height of its origin above the table."""
+        return self.objects[..., PROPERTY["half_height"]]
+
+    @property
+    def yaw_symmetry(self) -> np.ndarray:
+        """(E, K) each object's yaw symmetry (`yaw_symmetry`; 0: any turn)."""
+        return self.objects[..., PROPERTY["yaw_symmetry"]]
+
+    @property
+    def spheres(self) -> np.ndarray:
+        """(E, K) whether the object is a sphere (it rolls away rather than stands tilted)."""
+        return self.objects[..., PROPERTY["shape_sphere"]] > 0.5
 
     def take(self, idx: np.ndarray) -> EpisodeSet:
         idx = np.asarray(idx, dtype=np.int64)
@@ -105,9 +209,13 @@ class EpisodeSet:
     @staticmethod
     def union(parts: list[EpisodeSet]) -> EpisodeSet:
         scene = parts[0].scene
-        for p in parts[1:]:
-            if p.scene.objects != scene.objects or p.scene.shapes != scene.shapes:
-                raise EvaluationError(f"datasets of different scenes: {scene.objects} and {p.scene.objects}")
+        for p in parts[1:]:  # the objects may differ (each episode has its own), not the slots, table or arm
+            same = (len(p.scene.objects), p.scene.table, p.scene.top, p.scene.robot)
+            if same != (len(scene.objects), scene.table, scene.top, scene.robot):
+                raise EvaluationError(
+                    f"datasets of different scenes: {scene.task} with {len(scene.objects)} objects and "
+                    f"{p.scene.task} with {len(p.scene.objects)}"
+                )
         out = {"scene": scene}
         for f in fields(EpisodeSet):
             if f.name == "scene":
@@ -221,12 +329,39 @@ def read_dataset(root: Path) -> Dataset:
         explorer=np.array([str(r.get("explorer", run["config"]["explorer"])) for r in executed]),
         identity=np.array([identity_key(r) for r in executed]),
         layout=np.array([layout_key(r) for r in executed]),
-        commands=[{"kind": r["kind"], "genome": r["genome"], "layout": _placement(r)} for r in executed],
+        commands=[
+            {"kind": r["kind"], "genome": r["genome"], "layout": _placement(r), "objects": r.get("objects")}
+            for r in executed
+        ],
         actions=[action[r] for r in rows_of],
         states=[state[r] for r in rows_of],
         poses=[poses[r] for r in rows_of],
+        objects=episode_objects(scene, executed),
     )
     return Dataset(root, run, episodes, len(rows))
+
+
+def episode_objects(scene: Scene, rows: list[dict]) -> np.ndarray:
+    """(E, K, P) the `object_vector` of each row's objects, slot by slot: its own (the sidecar's "objects"), or the
+    task's for rows made before objects were recorded."""
+    task = scene.properties
+    cache: dict[str, np.ndarray] = {}
+    out = np.empty((len(rows), *task.shape))
+    for i, row in enumerate(rows):
+        objects = row.get("objects")
+        if objects is None:
+            out[i] = task
+            continue
+        if len(objects) != len(scene.specs):
+            raise EvaluationError(
+                f"attempt {row.get('attempt')} holds {len(objects)} objects, its task {len(scene.specs)} slots"
+            )
+        for k, factors in enumerate(objects):
+            key = json.dumps(factors, sort_keys=True)
+            if key not in cache:
+                cache[key] = object_vector(object_spec(factors))
+            out[i, k] = cache[key]
+    return out
 
 
 def _read_columns(root: Path, repo_id: str) -> dict:
@@ -261,15 +396,18 @@ def object_distance_moved(episodes: EpisodeSet) -> np.ndarray:
 def outcomes(episodes: EpisodeSet) -> tuple[np.ndarray, np.ndarray]:
     """(moved (E, K) bool, stratum (E,) index into `STRATA`) of each episode, from its first and last frames: an
     object moved when displaced over `MOVED`; an episode is ``toppled_rolled_off`` when an object toppled (tilted
-    over `TOPPLED`), a round object that cannot stand tilted (a sphere) moved, or an object left the table top;
+    over `TOPPLED`), a round object that cannot stand tilted (a sphere) moved, or an object left the table top
+    (beyond its edges, or untoppled over 2 cm below its upright resting height and its start, whichever is lower);
     else ``several_objects`` when two or more moved, ``one_object`` when one did, ``nothing_moved`` otherwise."""
     scene = episodes.scene
     first, final = episodes.first, episodes.final
     moved = object_distance_moved(episodes) > MOVED
     toppled = np.abs(tilt_of(final[..., 3:]) - tilt_of(first[..., 3:])) > TOPPLED
-    rolled = moved & (np.array(scene.shapes) == "sphere")[None]
+    rolled = moved & episodes.spheres
     x0, x1, y0, y1 = scene.table
-    off = (final[..., 2] < scene.top + scene.half_heights[None] - 0.02) & ~toppled
+    # below where it rested: an object can settle lower than its upright resting height (a hull on another face)
+    rest = np.minimum(scene.top + episodes.half_heights, first[..., 2])
+    off = (final[..., 2] < rest - 0.02) & ~toppled
     off |= (final[..., 0] < x0) | (final[..., 0] > x1) | (final[..., 1] < y0) | (final[..., 1] > y1)
     stratum = np.minimum(moved.sum(axis=1), 2)
     stratum[(toppled | rolled | off).any(axis=1)] = 3

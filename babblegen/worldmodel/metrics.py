@@ -35,7 +35,8 @@ def _median(values: np.ndarray) -> float:
 
 
 def _scores(pred: np.ndarray, first: np.ndarray, final: np.ndarray, moved: np.ndarray, mean: np.ndarray, sym):
-    """The scores of one group of episodes: ``pred``, ``first``, ``final`` (E, K, 4) states."""
+    """The scores of one group of episodes: ``pred``, ``first``, ``final`` (E, K, 4) states, ``sym`` (E, K) the
+    objects' yaw symmetries."""
     pred_moved = np.linalg.norm(pred[..., :3] - first[..., :3], axis=-1) > MOVED
     tp = float((pred_moved & moved).sum())
     denominator = float(pred_moved.sum() + moved.sum())
@@ -43,8 +44,8 @@ def _scores(pred: np.ndarray, first: np.ndarray, final: np.ndarray, moved: np.nd
     nothing = np.linalg.norm(first[..., :2] - final[..., :2], axis=-1)[moved] * 100
     guess = first[..., :2] + mean[None]
     mean_err = np.linalg.norm(guess - final[..., :2], axis=-1)[moved] * 100
-    has_yaw = moved & (sym > 0)[None]
-    period = np.where(sym > 0, sym, 2 * np.pi)[None]
+    has_yaw = moved & (sym > 0)
+    period = np.where(sym > 0, sym, 2 * np.pi)
     yaw_err = np.abs(wrap(pred[..., 3] - final[..., 3], period))[has_yaw]
     still = ~moved
     out = {
@@ -67,12 +68,12 @@ def score(pred: np.ndarray, test: EpisodeSet, mean: np.ndarray) -> dict:
     """The scores of predicted final states ``pred`` (E, K, 4) on ``test``: ``all``, each stratum, ``macro``."""
     first, final = object_state(test.first), object_state(test.final)
     moved, stratum = outcomes(test)
-    sym = test.scene.yaw_symmetry
+    sym = test.yaw_symmetry  # (E, K): each episode's own objects
     out = {"all": _scores(pred, first, final, moved, mean, sym)}
     for i, name in enumerate(STRATA):
         pick = stratum == i
         if pick.any():
-            out[name] = _scores(pred[pick], first[pick], final[pick], moved[pick], mean, sym)
+            out[name] = _scores(pred[pick], first[pick], final[pick], moved[pick], mean, sym[pick])
     present = [out[s] for s in STRATA if s in out]
     with_moves = [s for s in present if s["moved"]]
     out["macro"] = {

@@ -10,12 +10,14 @@ Two learned parts, both fitted on the training episodes alone:
 - `StepModel`, the objects' response to the arm and to each other, one frame at a time, one network shared by
   every object (`features`): in the object's own frame (its position; its yaw modulo its symmetry), the arm's
   nearest collision spheres where they start and end the frame, its own last motion, height and the table's
-  edges, and the other objects' places and last motions. It predicts whether the object moves this frame and, if
-  so, by how much (x, y, yaw, z in its frame). Trained on every recorded frame with the true poses (teacher
+  edges, its own properties (shape, size, mass, friction...: `property_inputs`), and the other objects' places,
+  last motions, sizes and masses. It predicts whether the object moves this frame and, if so, by how much (x, y,
+  yaw, z in its frame). Trained on every recorded frame with the true poses (teacher
   forcing); `rollout` runs it from the first frame on its own predictions, a frame at a time.
 
 What is learned for one object at one place holds for every object and place: that is what lets data from many
-starts predict starts it never saw, and data of many pushes predict where a push ends.
+starts predict starts it never saw, and data of many pushes predict where a push ends. The objects' properties are
+inputs, per episode (`EpisodeSet.objects`), so that data of many objects can predict objects it never saw.
 """
 
 from __future__ import annotations
@@ -26,7 +28,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from babblegen.worldmodel.episodes import MOVED, EpisodeSet, Scene, yaw_of
+from babblegen.worldmodel.episodes import MOVED, PROPERTIES, PROPERTY, EpisodeSet, EvaluationError, Scene, yaw_of
 
 NEAREST = 8  # arm spheres per object and frame the network sees (the nearest to it over the frame's motion)
 POS, VEL = 10.0, 100.0  # positions in decimetres, motions per frame in centimetres: inputs near unit scale
@@ -41,6 +43,10 @@ GATES = (
     0.5,
 )  # the "moves" thresholds (logits) a model chooses among on its validation episodes
 MOVING = 0.001  # metres (or radians / 10) in one frame: the object moves in that frame
+# what an object sees of each other object's properties, beside its place and motion
+OTHER = ("footprint_radius", "half_height", "mass", "static_friction", "dynamic_friction")
+LENGTHS = ("footprint_radius", "half_height", "half_extent_x", "half_extent_y", "half_extent_z")
+LOGS = {"volume": 1e-3, "mass": 1.0, "density": 1e3}  # inputs as log10 of the value in these units (litres, ...)
 
 
 def wrap(angle: np.ndarray, period: float | np.ndarray = 2 * np.pi) -> np.ndarray:
@@ -116,15 +122,44 @@ def object_state(poses: np.ndarray) -> np.ndarray:
     return np.concatenate([poses[..., :3], yaw_of(poses[..., 3:])[..., None]], axis=-1)
 
 
+def property_inputs(objects: np.ndarray) -> np.ndarray:
+    """(..., P) `object_vector`s as the step network reads them, near unit scale: the shape one-hot as is, lengths
+    in decimetres, volume, mass and density as log10 (of litres, kg, tonnes / m^3), frictions and restitution as
+    they are, the yaw symmetry in half turns."""
+    out = np.array(objects, dtype=np.float64, copy=True)
+    for name in LENGTHS:
+        out[..., PROPERTY[name]] *= POS
+    for name, unit in LOGS.items():
+        out[..., PROPERTY[name]] = np.log10(np.maximum(out[..., PROPERTY[name]], 1e-12) / unit)
+    out[..., PROPERTY["yaw_symmetry"]] /= np.pi
+    return out
+
+
+def scene_objects(scene: Scene, objects: np.ndarray | None, n: int) -> np.ndarray:
+    """(N, K, P) the objects of N scenes: ``objects`` as given ((N, K, P), or one (K, P) for all), or the task's."""
+    props = scene.properties if objects is None else np.asarray(objects, dtype=np.float64)
+    return np.broadcast_to(props, (n, *props.shape[-2:]))
+
+
 def features(
-    scene: Scene, radii: np.ndarray, now: np.ndarray, before: np.ndarray, arm0: np.ndarray, arm1: np.ndarray
+    scene: Scene,
+    radii: np.ndarray,
+    now: np.ndarray,
+    before: np.ndarray,
+    arm0: np.ndarray,
+    arm1: np.ndarray,
+    objects: np.ndarray | None = None,
+    properties: bool = True,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Inputs of the step network for N scenes at one frame: ``now`` and ``before`` (N, K, 4) the objects' states
-    in this frame and the one before, ``arm0`` and ``arm1`` (N, S, 3) the arm's spheres in this frame and the next.
-    Returns (N, K, F), one row per object, in its own frame (see the module docstring), and (N, K) how near the
-    arm's surface passes the object's centre this frame, metres."""
+    in this frame and the one before, ``arm0`` and ``arm1`` (N, S, 3) the arm's spheres in this frame and the next,
+    ``objects`` the objects' `object_vector`s ((N, K, P); None: the task's). Returns (N, K, F), one row per object,
+    in its own frame (see the module docstring), and (N, K) how near the arm's surface passes the object's centre
+    this frame, metres. ``properties=False`` gives zeros for the property inputs (the objects' geometry still sets
+    their frames and resting heights)."""
     n, k = now.shape[:2]
-    sym = scene.yaw_symmetry
+    objects = scene_objects(scene, objects, n)
+    sym = objects[..., PROPERTY["yaw_symmetry"]]  # (N, K)
     frame_yaw = np.where(sym > 0, wrap(now[..., 3], sym), 0.0)  # (N, K): each object's frame
     cos, sin = np.cos(frame_yaw), np.sin(frame_yaw)
 
@@ -147,36 +182,41 @@ def features(
     parts = [to_frame(r0[..., :2]), r0[..., 2:], to_frame(r1[..., :2]), r1[..., 2:], radii[near][..., None]]
     parts += [to_frame(closest[..., :2]), closest[..., 2:], np.take_along_axis(gap, near, axis=2)[..., None]]
     arm = np.concatenate(parts, axis=-1).reshape(n, k, -1) * POS
-    # the object itself: its last motion, its height over resting, the table's edges
-    rest = scene.top + scene.half_heights
+    # the object itself: its last motion, its height over resting, the table's edges, its properties
+    rest = scene.top + objects[..., PROPERTY["half_height"]]  # (N, K)
     motion = now - before
     period = np.where(sym > 0, sym, 2 * np.pi)
     own = np.concatenate(
         [
             to_frame(motion[:, :, None, :2])[:, :, 0] * VEL,
-            wrap(motion[..., 3:4], period[None, :, None]) * VEL / 10,
+            wrap(motion[..., 3:4], period[..., None]) * VEL / 10,
             motion[..., 2:3] * VEL,
-            (now[..., 2:3] - rest[None, :, None]) * POS,
+            (now[..., 2:3] - rest[..., None]) * POS,
         ],
         axis=-1,
     )
     x0, x1, y0, y1 = scene.table
     edges = np.stack([now[..., 0] - x0, x1 - now[..., 0], now[..., 1] - y0, y1 - now[..., 1]], axis=-1) * POS
-    # the others, in the scene's order: where each stands, its last motion and height, in this object's frame
+    props = property_inputs(objects) if properties else np.zeros(objects.shape)
+    # the others, in the scene's order: where each stands, its last motion and height, its size and mass, in this
+    # object's frame
     rel = now[:, None, :, :2] - now[:, :, None, :2]  # (N, K, K, 2): object j relative to object i
     vel = np.broadcast_to(motion[:, None, :, :2], rel.shape)
-    high = np.broadcast_to((now[..., 2] - rest[None])[:, None, :, None], (n, k, k, 1))
-    pair = np.concatenate([to_frame(rel) * POS, to_frame(vel) * VEL, high * POS], axis=-1)
-    pair = pair[:, ~np.eye(k, dtype=bool)].reshape(n, k, (k - 1) * 5)
+    high = np.broadcast_to((now[..., 2] - rest)[:, None, :, None], (n, k, k, 1))
+    theirs = np.broadcast_to(props[:, None][..., [PROPERTY[p] for p in OTHER]], (n, k, k, len(OTHER)))
+    pair = np.concatenate([to_frame(rel) * POS, to_frame(vel) * VEL, high * POS, theirs], axis=-1)
+    pair = pair[:, ~np.eye(k, dtype=bool)].reshape(n, k, (k - 1) * (5 + len(OTHER)))
     which = np.broadcast_to(np.eye(k), (n, k, k))
     nearest = np.take_along_axis(gap, near[..., :1], axis=2)[..., 0]
-    return np.concatenate([which, own, edges, pair, arm], axis=-1).astype(np.float32), nearest
+    return np.concatenate([which, own, edges, props, pair, arm], axis=-1).astype(np.float32), nearest
 
 
-def targets(scene: Scene, now: np.ndarray, after: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def targets(
+    scene: Scene, now: np.ndarray, after: np.ndarray, objects: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """What the step network learns for (N, K, 4) states in a frame and the next: the motion in the object's frame
-    (dx, dy in cm, dyaw in rad / 10, dz in cm), and whether it moves at all."""
-    sym = scene.yaw_symmetry
+    (dx, dy in cm, dyaw in rad / 10, dz in cm), and whether it moves at all. ``objects``: as `features`'."""
+    sym = scene_objects(scene, objects, len(now))[..., PROPERTY["yaw_symmetry"]]
     frame_yaw = np.where(sym > 0, wrap(now[..., 3], sym), 0.0)
     cos, sin = np.cos(frame_yaw), np.sin(frame_yaw)
     d = after - now
@@ -194,9 +234,10 @@ def targets(scene: Scene, now: np.ndarray, after: np.ndarray) -> tuple[np.ndarra
     return out.astype(np.float32), moving
 
 
-def apply(scene: Scene, now: np.ndarray, motion: np.ndarray) -> np.ndarray:
-    """(N, K, 4) states after the step network's (N, K, 4) motions (in each object's frame)."""
-    sym = scene.yaw_symmetry
+def apply(scene: Scene, now: np.ndarray, motion: np.ndarray, objects: np.ndarray | None = None) -> np.ndarray:
+    """(N, K, 4) states after the step network's (N, K, 4) motions (in each object's frame). ``objects``: as
+    `features`'."""
+    sym = scene_objects(scene, objects, len(now))[..., PROPERTY["yaw_symmetry"]]
     frame_yaw = np.where(sym > 0, wrap(now[..., 3], sym), 0.0)
     cos, sin = np.cos(frame_yaw), np.sin(frame_yaw)
     dx, dy = motion[..., 0] / VEL, motion[..., 1] / VEL
@@ -237,21 +278,22 @@ class TrainSettings:
     hidden: int = 256
     lr: float = 2e-3
     seed: int = 0
+    object_inputs: bool = True  # False: the objects' properties are no input (zeros), an ablation
 
 
-def training_rows(episodes: EpisodeSet, rng: np.random.Generator) -> tuple[np.ndarray, ...]:
+def training_rows(episodes: EpisodeSet, rng: np.random.Generator, properties: bool = True) -> tuple[np.ndarray, ...]:
     """The step network's rows (inputs, targets, moving, weight) of every frame of every episode, with the true arm
-    and object states."""
+    and object states; ``properties``: as `features`'."""
     scene = episodes.scene
     spheres = ArmSpheres(scene.robot)
     xs, ys, ms, ws = [], [], [], []
-    for q, poses in zip(episodes.states, episodes.poses, strict=True):
+    for q, poses, objects in zip(episodes.states, episodes.poses, episodes.objects, strict=True):
         state = object_state(poses)
         before = np.concatenate([state[:1], state[:-2]])
         balls = spheres(q)
-        x, gap = features(scene, spheres.radii, state[:-1], before, balls[:-1], balls[1:])
-        y, m = targets(scene, state[:-1], state[1:])
-        _, was = targets(scene, before, state[:-1])
+        x, gap = features(scene, spheres.radii, state[:-1], before, balls[:-1], balls[1:], objects, properties)
+        y, m = targets(scene, state[:-1], state[1:], objects)
+        _, was = targets(scene, before, state[:-1], objects)
         # quiet rows (nothing near or moving, before or now) teach little but "stays": keep one in QUIET
         busy = (gap < BUSY_GAP) | m | was | (m | was).any(axis=1, keepdims=True)
         keep = busy | (rng.random(busy.shape) < 1 / QUIET)
@@ -275,8 +317,11 @@ def step_loss(net: StepNet, x: torch.Tensor, y: torch.Tensor, m: torch.Tensor, w
 class WorldModel:
     """`ArmFilter` and `StepNet` together; `fit` on episodes, `predict` where objects end up."""
 
-    def __init__(self, scene: Scene, arm: ArmFilter, net: StepNet, mean: np.ndarray, std: np.ndarray):
+    def __init__(
+        self, scene: Scene, arm: ArmFilter, net: StepNet, mean: np.ndarray, std: np.ndarray, object_inputs: bool = True
+    ):
         self.scene, self.arm, self.net, self.mean, self.std = scene, arm, net, mean, std
+        self.object_inputs = object_inputs  # False: the objects' properties are no input (`TrainSettings`)
         self.spheres = ArmSpheres(scene.robot)
         self.trained_steps = 0
         self.gate = 0.0  # a frame's motion is applied where the "moves" logit exceeds this
@@ -290,15 +335,19 @@ class WorldModel:
         n_val = int(len(episodes) * s.validation) if len(episodes) >= 10 else 0
         train, val = episodes.take(np.sort(order[n_val:])), episodes.take(np.sort(order[:n_val]))
         arm = ArmFilter.fit(train.actions, train.states)
-        x, y, m, w = training_rows(train, rng)
-        mean, std = x.mean(axis=0), x.std(axis=0) + 1e-3
+        x, y, m, w = training_rows(train, rng, s.object_inputs)
+        # an input that never varies in training (a shape no training object has) teaches nothing: read as 0
+        mean, std = x.mean(axis=0), x.std(axis=0)
+        std = np.where(std < 1e-6, np.inf, std + 1e-3).astype(np.float32)
 
         def tensors(rows: tuple[np.ndarray, ...]) -> list[torch.Tensor]:
             xr, *rest = rows
             return [torch.from_numpy(((xr - mean) / std).astype(np.float32))] + [torch.from_numpy(r) for r in rest]
 
         xt, yt, mt, wt = tensors((x, y, m, w.astype(np.float32)))
-        checks = tensors(tuple(r.astype(np.float32) for r in training_rows(val, rng))) if n_val else None
+        checks = (
+            tensors(tuple(r.astype(np.float32) for r in training_rows(val, rng, s.object_inputs))) if n_val else None
+        )
         net = StepNet(x.shape[1], s.hidden)
         opt = torch.optim.AdamW(net.parameters(), lr=s.lr, weight_decay=1e-4)
         sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=s.lr, total_steps=s.steps)
@@ -326,7 +375,7 @@ class WorldModel:
                     since += 1
                     if since >= s.patience:
                         break
-        model = cls(episodes.scene, arm, net, mean, std)
+        model = cls(episodes.scene, arm, net, mean, std, s.object_inputs)
         if best_state is not None:
             net.load_state_dict(best_state)
             model.trained_steps = best_step
@@ -355,14 +404,30 @@ class WorldModel:
         """(E, K, 4) every object's x, y, z, yaw in each episode's last frame, predicted from its first frame's
         poses and joints and its commanded joints."""
         return self.rollout(
-            [object_state(p[0]) for p in episodes.poses], episodes.actions, [s[0] for s in episodes.states]
+            [object_state(p[0]) for p in episodes.poses],
+            episodes.actions,
+            [s[0] for s in episodes.states],
+            objects=episodes.objects,
         )
 
-    def rollout(self, first: list[np.ndarray], actions: list[np.ndarray], joints0: list[np.ndarray]) -> np.ndarray:
-        """Final (E, K, 4) states of episodes given their first states (K, 4), commands (T, 7), first joints."""
+    def rollout(
+        self,
+        first: list[np.ndarray],
+        actions: list[np.ndarray],
+        joints0: list[np.ndarray],
+        objects: np.ndarray | list[np.ndarray] | None = None,
+    ) -> np.ndarray:
+        """Final (E, K, 4) states of episodes given their first states (K, 4), commands (T, 7), first joints, and
+        objects: per episode (K, P) `object_vector`s (``EpisodeSet.objects``; one (K, P) for all), None for the
+        task's objects (the training scene's)."""
         lengths = np.array([len(a) for a in actions])
         horizon = int(lengths.max())
         e, k = len(actions), len(first[0])
+        if k != len(self.scene.objects):
+            raise EvaluationError(f"the model knows scenes of {len(self.scene.objects)} objects, not {k}")
+        props = scene_objects(self.scene, None if objects is None else np.asarray(objects, dtype=np.float64), e)
+        if props.shape[-1] != len(PROPERTIES):
+            raise EvaluationError(f"objects need {len(PROPERTIES)} properties each, got {props.shape[-1]}")
         balls = np.zeros((e, horizon, len(self.spheres.radii), 3))
         for i, (a, q0) in enumerate(zip(actions, joints0, strict=True)):
             q = self.arm.run(a, q0)
@@ -376,12 +441,19 @@ class WorldModel:
                 if not len(live):
                     break
                 x, _ = features(
-                    self.scene, self.spheres.radii, now[live], before[live], balls[live, t], balls[live, t + 1]
+                    self.scene,
+                    self.spheres.radii,
+                    now[live],
+                    before[live],
+                    balls[live, t],
+                    balls[live, t + 1],
+                    props[live],
+                    self.object_inputs,
                 )
                 logit, motion = self.net(torch.from_numpy((x.reshape(-1, x.shape[-1]) - self.mean) / self.std))
                 motion = motion.numpy().reshape(len(live), k, 4) * (logit.numpy() > self.gate).reshape(len(live), k, 1)
                 before[live] = now[live]
-                now[live] = apply(self.scene, now[live], motion)
+                now[live] = apply(self.scene, now[live], motion, props[live])
                 ended = live[lengths[live] - 2 == t]
                 final[ended] = now[ended]
         final[lengths == 1] = now[lengths == 1]

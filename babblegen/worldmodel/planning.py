@@ -63,6 +63,7 @@ class PlanningTask:
     feasible: np.ndarray  # (G, C) bool
     actions: list[list[np.ndarray]]  # per goal, per candidate: (T, 7) commanded joints (empty when infeasible)
     final_xy: np.ndarray  # (G, C, 2) the goal object's true end position (nan when infeasible)
+    objects: np.ndarray | None = None  # (G, K, P) the start's objects (`object_vector`s; None: the task's)
 
     def successes(self, success_cm: float) -> np.ndarray:
         """(G, C) whether each candidate reached its goal."""
@@ -83,6 +84,7 @@ class PlanningTask:
             final_xy=self.final_xy,
             lengths=lengths,
             actions=np.concatenate(flat) if flat else np.zeros((0, 7)),
+            objects=np.zeros(0) if self.objects is None else self.objects,
         )
 
     @classmethod
@@ -91,7 +93,7 @@ class PlanningTask:
         if not path.is_file():
             return None
         with np.load(path) as f:
-            if str(f["key"]) != key:
+            if str(f["key"]) != key or "objects" not in f.files:  # made before objects were stored: again
                 return None
             data = {name: f[name] for name in f.files}
         g, c = data["feasible"].shape
@@ -100,7 +102,7 @@ class PlanningTask:
         actions = [[flat[i * c + j] for j in range(c)] for i in range(g)]
         return cls(
             data["goal_object"], data["goal_xy"], data["first"], data["joints0"], data["feasible"], actions,
-            data["final_xy"],
+            data["final_xy"], data["objects"] if data["objects"].size else None,
         )  # fmt: skip
 
 
@@ -148,7 +150,7 @@ def build_task(test: EpisodeSet, settings: PlanningSettings, workers: int, cache
         )
         for c, genome in enumerate(genomes):
             attempt = int(test.attempt[e]) if c == 0 else CANDIDATE_ATTEMPTS + g * settings.candidates + c
-            jobs.append((str(test.source[e]), attempt, genome.tolist(), command["layout"]))
+            jobs.append((str(test.source[e]), attempt, genome.tolist(), command["layout"], command.get("objects")))
     echo(f"planning: executing {len(goals)} goals x {settings.candidates} candidates ({len(jobs)} movements)")
     results = execute(jobs, workers)
     c = settings.candidates
@@ -173,6 +175,7 @@ def build_task(test: EpisodeSet, settings: PlanningSettings, workers: int, cache
         feasible=feasible,
         actions=actions,
         final_xy=final_xy,
+        objects=test.objects[episodes],
     )
     if cache is not None:
         cache.parent.mkdir(parents=True, exist_ok=True)
@@ -189,8 +192,9 @@ def plan_scores(model: WorldModel, task: PlanningTask, success_cm: float) -> dic
         if not len(live):
             picks.append(False)
             continue
+        objects = {} if task.objects is None else {"objects": [task.objects[g]] * len(live)}
         pred = model.rollout(
-            [task.first[g]] * len(live), [task.actions[g][j] for j in live], [task.joints0[g]] * len(live)
+            [task.first[g]] * len(live), [task.actions[g][j] for j in live], [task.joints0[g]] * len(live), **objects
         )
         miss = np.linalg.norm(pred[:, task.goal_object[g], :2] - task.goal_xy[g], axis=-1)
         # candidates predicted equally near (none predicted to move, say): one of them at random, as expected value
@@ -208,16 +212,18 @@ def plan_scores(model: WorldModel, task: PlanningTask, success_cm: float) -> dic
 _worlds: dict = {}
 
 
-def _rollout(job: tuple[str, int, list, list | None]) -> tuple[bool, np.ndarray, np.ndarray | None]:
-    """One candidate in this process's World for its dataset (built on first use)."""
+def _rollout(job: tuple[str, int, list, list | None, list | None]) -> tuple[bool, np.ndarray, np.ndarray | None]:
+    """One candidate in this process's World for its dataset (built on first use), from the goal episode's start
+    and objects (its sidecar row's; None: the task's)."""
     from babblegen.config import resumed_config
     from babblegen.evaluation import seeded_rollout, warm_up
     from babblegen.exporters.sidecar import read_run_info
+    from babblegen.scene import ObjectSpec
     from babblegen.tasks import get_task
     from babblegen.world.rollout import Command
     from babblegen.world.world import World
 
-    root, attempt, genome, layout = job
+    root, attempt, genome, layout, objects = job
     if root not in _worlds:
         if not _worlds:  # leave without the interpreter's teardown, where OMPL's binding reports spurious leaks
             atexit.register(os._exit, 0)
@@ -226,7 +232,8 @@ def _rollout(job: tuple[str, int, list, list | None]) -> tuple[bool, np.ndarray,
         warm_up(world, None)
         _worlds[root] = (world, config.seed)
     world, seed = _worlds[root]
-    command = Command("ee_waypoints", np.asarray(genome), None if layout is None else np.asarray(layout))
+    objects = None if objects is None else tuple(ObjectSpec.from_factors(o) for o in objects)
+    command = Command("ee_waypoints", np.asarray(genome), None if layout is None else np.asarray(layout), objects)
     rollout = seeded_rollout(world, command, seed, attempt, defer_render=True)
     if not rollout.feasible:
         return False, np.zeros((0, 7)), None
