@@ -113,3 +113,48 @@ def test_cem_samples_genomes_as_the_explorers_make_them():
     assert len(seen) == 3 * CemSettings().samples * CemSettings().iterations
     assert {len(g) for g in seen} <= {1, 2, 3, 4} and len({len(g) for g in seen}) > 1
     assert all(((g >= 0) & (g <= 1)).all() for g in seen)
+
+
+# --- in the simulator ----------------------------------------------------------------------------------------
+
+
+@pytest.mark.sim
+def test_the_scored_trajectory_is_the_executed_one(small_heldout_dataset):
+    """What the search scores for a genome (IK joined by straight segments, timed as the world times them) is, frame
+    for frame, the ``action`` the world records when it executes that genome, wherever the segments are free; a
+    genome the search does not score (IK fails or a segment collides) is one the planner rejects or detours."""
+    from babblegen.evaluation import seeded_rollout
+    from babblegen.tasks import get_task
+    from babblegen.world.rollout import Command
+    from babblegen.world.world import World
+    from babblegen.worldmodel.planning import _config
+    from babblegen.worldmodel.planning_cem import Commander
+
+    config = _config(str(small_heldout_dataset))
+    commander = Commander(config)
+    rng = np.random.default_rng(5)
+    genomes = [rng.random((int(rng.integers(1, 5)), 3)) for _ in range(40)]
+    scored = commander.trajectories(genomes)
+    paths = commander.joint_paths(genomes)
+    world = World(get_task(config.task), config.world, seed=config.seed)
+    try:
+        compared = 0
+        for genome, action, path in zip(genomes, scored, paths, strict=True):
+            plan = world.plan_command(Command("ee_waypoints", genome))
+            if path is None:  # IK found no configuration: neither does the planner
+                assert plan.path is None
+                continue
+            if action is None:  # too long, or a straight segment collides: then the planner detours or fails
+                assert commander.actions(path) is None or plan.path is None or plan.planner != "direct"
+                continue
+            assert plan.path is not None and plan.planner == "direct"
+            np.testing.assert_array_equal(plan.path, path)  # the same IK, the same straight path
+            if compared < 2:  # two executions: the recorded commands are the scored ones
+                rollout = seeded_rollout(world, Command("ee_waypoints", genome), config.seed, 10**9 + compared)
+                executed = np.asarray(rollout.frames.action, dtype=np.float32).astype(np.float64)
+                assert len(executed) >= len(action)
+                np.testing.assert_array_equal(executed[: len(action)], action)
+                compared += 1
+        assert compared == 2
+    finally:
+        world.close()
