@@ -316,7 +316,14 @@ def rank_scores(model: WorldModel, task: PlanningTask, settings: PlanningSetting
     out = by_stratum(task, picks)
     out["model"] = out.pop("rate")
     oracle = float(success[:, cols].any(axis=1).mean())
-    out.update(oracle=oracle, share=out["model"] / oracle if oracle else float("nan"), goal_success=picks.tolist())
+    feasible = task.feasible[:, cols]
+    chance = [success[g, cols][feasible[g]].mean() if feasible[g].any() else 0.0 for g in range(len(picks))]
+    out.update(
+        oracle=oracle,
+        random=float(np.mean(chance)),  # a candidate chosen at random among the feasible ones
+        share=out["model"] / oracle if oracle else float("nan"),
+        goal_success=picks.tolist(),
+    )
     return out
 
 
@@ -329,7 +336,7 @@ def cem_scores(model: WorldModel, task: PlanningTask, settings: PlanningSettings
     g_count = len(task.goal_object)
     genomes: list[np.ndarray | None] = [None] * g_count
     scored: list[np.ndarray | None] = [None] * g_count
-    search, rollouts = 0.0, 0
+    search, search_cpu, rollouts = 0.0, 0.0, 0
     for root in sorted(set(task.source.tolist())):
         idx = np.flatnonzero(task.source == root)
         result = cem_plan(
@@ -337,6 +344,7 @@ def cem_scores(model: WorldModel, task: PlanningTask, settings: PlanningSettings
             cem, settings.seed,
         )  # fmt: skip
         search += result.seconds
+        search_cpu += result.cpu_seconds
         rollouts += result.rollouts
         for j, g in enumerate(idx):
             genomes[g], scored[g] = result.genomes[j], result.actions[j]
@@ -363,6 +371,7 @@ def cem_scores(model: WorldModel, task: PlanningTask, settings: PlanningSettings
     out.update(
         goal_success=success.tolist(),
         search_seconds=search,
+        search_cpu_seconds=search_cpu,
         rollouts=rollouts,
         execute_seconds=time.perf_counter() - t0,
         no_plan=float(1 - len(run) / g_count),

@@ -59,7 +59,7 @@ def planning_table(result: dict, block: dict) -> list[str]:
     header = ["planner / baseline", "all"] + [f"{GOAL_STRATA.get(s, s)} ({p['strata'][s]})" for s in strata]
     cem = p.get("planner") == "cem"
     if cem:
-        header += ["executed differs / infeasible", "search s per model"]
+        header += ["executed differs / infeasible", "search s per model (CPU)"]
     rows = []
     for name, pooled in block.get("planning", {}).items():
         row = [f"model trained on {name}", interval(pooled["model"], pooled["ci95"])]
@@ -68,7 +68,9 @@ def planning_table(result: dict, block: dict) -> list[str]:
             results = block["sources"][name]
             differs = cell(_values(results, ("planning", "executed", "differs")), 2)
             infeasible = cell(_values(results, ("planning", "executed", "infeasible")), 2)
-            row += [f"{differs} / {infeasible}", cell(_values(results, ("planning", "search_seconds")), 0)]
+            wall = cell(_values(results, ("planning", "search_seconds")), 0)
+            cpu = cell(_values(results, ("planning", "search_cpu_seconds")), 0)
+            row += [f"{differs} / {infeasible}", f"{wall} ({cpu})"]
         rows.append(row)
     baselines = p.get("baselines", {})
     for key, label in BASELINES.items():
