@@ -74,7 +74,8 @@ class PlanningSettings:
 
     def key(self, test: EpisodeSet) -> str:
         """What the executed goals and baselines depend on: the settings that choose them, and the test set."""
-        parts = [self.planner == "rank", self.goals, self.candidates, self.min_move_cm, self.sigma, self.seed]
+        parts = [self.planner == "rank", self.goals, self.candidates, self.min_move_cm, self.far_cm, self.sigma]
+        parts.append(self.seed)
         raw = json.dumps([parts, sorted(set(test.source.tolist())), test.identity.tolist()]).encode()
         return hashlib.blake2b(raw, digest_size=12).hexdigest()
 
