@@ -41,7 +41,7 @@ def interval(value: float, ci: list[float]) -> str:
     """A rate with its 95 % interval."""
     if value is None or (isinstance(value, float) and math.isnan(value)):
         return "-"
-    return f"{value:.2f} [{ci[0]:.2f}, {ci[1]:.2f}]"
+    return f"{value:.3f} [{ci[0]:.3f}, {ci[1]:.3f}]"
 
 
 BASELINES = {
