@@ -30,7 +30,7 @@ import os
 import time
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
-from multiprocessing import get_context
+from multiprocessing import get_context, parent_process
 from pathlib import Path
 
 import numpy as np
@@ -421,7 +421,9 @@ def _rollout(job: tuple[str, int, str, list, list | None]) -> tuple[bool, np.nda
 
     root, attempt, kind, genome, start = job
     if root not in _worlds:
-        if not _worlds:  # leave without the interpreter's teardown, where OMPL's binding reports spurious leaks
+        if not _worlds and parent_process() is not None:
+            # a worker leaves without the interpreter's teardown, where OMPL's binding reports spurious leaks (not
+            # the main process: its exit status, a test run's say, must stand)
             atexit.register(os._exit, 0)
         config = _config(root)
         world = World(get_task(config.task), config.world, seed=config.seed)
