@@ -57,18 +57,51 @@ def test_an_attempt_budget_cuts_each_dataset_to_its_first_attempts(small_noveb_d
 
 
 def test_the_goal_genome_reproduces_the_goal(small_heldout_dataset):
-    """Planning's candidates run in the simulator; the goal episode's own genome, seeded as its attempt was, ends
-    exactly where the recorded episode ended, so the oracle always has one success."""
+    """The baselines run in the simulator; the goal episode's own genome, seeded as its attempt was, ends exactly
+    where the recorded episode ended: the replay baseline is 1.0, with the interval [1, 1]."""
     from babblegen.worldmodel.episodes import read_dataset
-    from babblegen.worldmodel.planning import PlanningSettings, build_task
+    from babblegen.worldmodel.planning import PlanningSettings, baseline_scores, build_task
 
     test = read_dataset(small_heldout_dataset).episodes
     settings = PlanningSettings(goals=2, candidates=3, min_move_cm=0.0)
     task = build_task(test, settings, workers=1, cache=None, echo=lambda _: None)
     assert task is not None and task.feasible[:, 0].all()
     np.testing.assert_array_equal(task.final_xy[:, 0], task.goal_xy)
-    assert task.successes(settings.success_cm)[:, 0].all()
-    assert len(task.actions[0][0]) >= 2
+    assert task.feasible.shape[1] == 1 + 3  # the goal's own movement and 3 random genomes, no mutations for cem
+    baselines = baseline_scores(task, settings.success_cm)
+    assert baselines["replay"]["rate"] == 1.0 and baselines["replay"]["ci95"] == [1.0, 1.0]
+    assert (task.strata["arm"] ^ task.strata["object"]).all()  # every goal pushed by the arm or by another object
+
+
+def test_planning_records_the_planner_goals_and_intervals(small_noveb_dataset, small_heldout_dataset, tmp_path):
+    """The cem planner end to end on two goals (a tiny search): evaluation.json's planning block records the
+    planner and the goals, every source's result its success and 95 % interval, beside the baselines."""
+    from babblegen.worldmodel.episodes import read_dataset
+    from babblegen.worldmodel.experiment import Source, run_experiment
+    from babblegen.worldmodel.model import TrainSettings
+    from babblegen.worldmodel.planning import PlanningSettings, build_task
+    from babblegen.worldmodel.report import write
+
+    test = {"held": read_dataset(small_heldout_dataset).episodes}
+    settings = PlanningSettings(goals=2, candidates=2, min_move_cm=0.0, cem_samples=6, cem_iterations=2, cem_elites=2)
+    task = build_task(test["held"], settings, workers=1, cache=None, echo=lambda _: None)
+    sources = [Source("noveb", [read_dataset(small_noveb_dataset)])]
+    result = run_experiment(
+        sources, test, [None], ["attempts"], TrainSettings(steps=30), task, settings, 1, echo=lambda _: None
+    )
+    result["settings"] = {"planning": {"success_cm": 3.0}}
+    write(result, tmp_path)
+    saved = json.loads((tmp_path / "evaluation.json").read_text())
+    assert saved["planning"]["planner"] == "cem" and saved["planning"]["goals"] == 2
+    run = saved["blocks"][0]["sources"]["noveb"][0]["planning"]
+    lo, hi = run["ci95"]
+    assert 0.0 <= lo <= run["model"] <= hi <= 1.0
+    assert len(run["goal_success"]) == 2 and run["rollouts"] > 0
+    assert run["executed"]["differs"] == 0.0  # what was scored is what ran
+    pooled = saved["blocks"][0]["planning"]["noveb"]
+    assert pooled["model"] == run["model"] and pooled["ci95"] == run["ci95"]
+    assert saved["planning"]["baselines"]["replay"]["rate"] == 1.0
+    assert "one random genome" in (tmp_path / "evaluation.md").read_text()
 
 
 def one_line_error(capsys, args: list[str]) -> str:

@@ -186,7 +186,7 @@ def test_planning_scores_by_hand():
     """Two goals of four candidates: goal 0 is reached by candidates 0 and 2, goal 1 by candidate 0 alone, and
     candidate 3 of goal 1 is infeasible. A model that predicts nothing moves chooses at random among all (as
     expected success: 2/4 and 1/3); the oracle-like model always succeeds."""
-    from babblegen.worldmodel.planning import PlanningTask, plan_scores
+    from babblegen.worldmodel.planning import PlanningSettings, PlanningTask, plan_scores
 
     first = object_state(np.array([REST, REST]))
     final = np.array(
@@ -195,13 +195,25 @@ def test_planning_scores_by_hand():
     feasible = ~np.isnan(final[..., 0])
     actions = [[np.array([[g, c, 0, 0, 0, 0, 0]] * 3, dtype=float) for c in range(4)] for g in range(2)]
     task = PlanningTask(
-        np.array([0, 1]), np.array([[0.9, 0.2], [0.7, 0.0]]), first, np.zeros((2, 7)), feasible, actions, final
+        source=np.array(["d", "d"]),
+        start=[None, None],
+        goal_object=np.array([0, 1]),
+        goal_xy=np.array([[0.9, 0.2], [0.7, 0.0]]),
+        first=first,
+        joints0=np.zeros((2, 7)),
+        strata={"arm": np.array([True, False]), "object": np.array([False, True]), "far": np.array([False, False])},
+        mutations=1,
+        feasible=feasible,
+        actions=actions,
+        final_xy=final,
     )
-    still = plan_scores(StillModel(), task, success_cm=3.0)
+    settings = PlanningSettings(planner="rank", candidates=4)
+    still = plan_scores(StillModel(), task, settings)
     assert still["oracle"] == 1.0
     assert still["random"] == pytest.approx((2 / 4 + 1 / 3) / 2)
     assert still["model"] == pytest.approx(still["random"])
-    assert plan_scores(Oracle(task), task, success_cm=3.0)["model"] == 1.0
+    assert still["strata"]["arm"]["rate"] == pytest.approx(2 / 4) and still["strata"]["object"]["rate"] == 1 / 3
+    assert plan_scores(Oracle(task), task, settings)["model"] == 1.0
 
 
 def vector(spec: ObjectSpec) -> dict[str, float]:

@@ -15,9 +15,11 @@ DESCRIPTION = """\
 Train a small world model (CPU, minutes) on each training source and score it on held-out test sets: which objects
 move (F1), where they end up (the median error of their final x, y against "nothing moves" and the training set's
 mean displacement; their yaw), overall and per outcome stratum (nothing moved, one object, several objects, toppled
-/ rolled / off the table), and in planning in the real simulator: for goals taken from a test set's episodes, the
-model picks one of K candidate movements, which is executed; beside it the oracle (the best of the same K) and a
-random choice.
+/ rolled / off the table), and in planning: for goals taken from a test set's episodes (an object's end position
+from the episode's start), the model alone searches waypoint genomes with the cross-entropy method (--planner cem)
+and its choice is executed once in the simulator; beside it one random genome, the best of --plan-candidates
+random genomes (each executed) and the goal's own movement replayed, each with a 95 % bootstrap interval over
+goals. --planner rank: the model ranks K executed candidates, the goal's own movement among them.
 
 Each --train source is NAME=DIR[,DIR...], one dataset per repeat; each --test set is NAME=DIR[,DIR...], the union of
 its datasets, seeded apart from every training dataset. --attempts cuts every training dataset to its first N
@@ -72,8 +74,22 @@ def register(sub) -> None:
         metavar="NAME",
         help="the test set whose episodes give the planning goals [default: the first --test]",
     )
-    p.add_argument("--plan-goals", type=int, default=40, help="planning goals; 0: no planning [default: 40]")
-    p.add_argument("--plan-candidates", type=int, default=16, help="candidate movements per goal [default: 16]")
+    p.add_argument("--plan-goals", type=int, default=200, help="planning goals; 0: no planning [default: 200]")
+    p.add_argument(
+        "--planner",
+        choices=("cem", "rank"),
+        default="cem",
+        help="cem: the model alone searches genomes, its choice is executed; rank: the model ranks executed "
+        "candidates [default: cem]",
+    )
+    p.add_argument(
+        "--plan-candidates",
+        type=int,
+        default=16,
+        help="random genomes per goal, each executed (the baselines); rank: the candidates per goal [default: 16]",
+    )
+    p.add_argument("--cem-samples", type=int, default=64, help="cem: genomes per goal and iteration [default: 64]")
+    p.add_argument("--cem-iterations", type=int, default=4, help="cem: iterations [default: 4]")
     p.add_argument(
         "--steps",
         type=int,
@@ -107,6 +123,8 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         raise EvaluationError(f"--plan-test {plan_test!r} names no --test set ({', '.join(test_names)})")
     if args.plan_goals < 0 or args.plan_candidates < 2:
         raise EvaluationError("--plan-goals must be >= 0 and --plan-candidates >= 2")
+    if args.cem_samples < 2 or args.cem_iterations < 1:
+        raise EvaluationError("--cem-samples must be >= 2 and --cem-iterations >= 1")
     workers = args.workers or os.cpu_count() or 1
     if workers < 1:
         raise EvaluationError(f"--workers must be at least 1, got {workers}")
@@ -129,12 +147,20 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     tests = {name: EpisodeSet.union([d.episodes for d in parts]) for name, parts in test_sets.items()}
     EpisodeSet.union([*tests.values(), *(d.episodes for s in sources for d in s.datasets)])  # one scene
 
-    plan_settings = PlanningSettings(goals=args.plan_goals, candidates=args.plan_candidates, seed=args.seed)
+    plan_settings = PlanningSettings(
+        planner=args.planner,
+        goals=args.plan_goals,
+        candidates=args.plan_candidates,
+        seed=args.seed,
+        cem_samples=args.cem_samples,
+        cem_iterations=args.cem_iterations,
+        cem_elites=max(2, args.cem_samples // 6),
+    )
     plan = None
     if args.plan_goals:
         plan = build_task(tests[plan_test], plan_settings, workers, args.out / f"planning_{plan_test}.npz")
         if plan is None:
-            print(f"planning: {plan_test} holds no goal (no waypoint episode moved an object 5 cm): skipped")
+            print(f"planning: {plan_test} holds no goal (no episode moved an object 5 cm onto the table): skipped")
     train = TrainSettings(seed=args.seed) if args.steps is None else TrainSettings(steps=args.steps, seed=args.seed)
     if train.steps < 1:
         raise EvaluationError(f"--steps must be at least 1, got {train.steps}")
@@ -151,6 +177,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         result["settings"] = settings
         if plan is not None:
             result["planning"]["test"] = plan_test
+            result["planning"]["settings"] = settings["planning"]
         return write(result, args.out)
 
     result = run_experiment(

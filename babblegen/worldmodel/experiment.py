@@ -19,7 +19,13 @@ import numpy as np
 from babblegen.worldmodel.episodes import STRATA, Dataset, EpisodeSet, EvaluationError, outcomes
 from babblegen.worldmodel.metrics import mean_displacement, score
 from babblegen.worldmodel.model import TrainSettings, WorldModel, object_state
-from babblegen.worldmodel.planning import PlanningSettings, PlanningTask, plan_scores
+from babblegen.worldmodel.planning import (
+    PlanningSettings,
+    PlanningTask,
+    baseline_scores,
+    bootstrap_ci,
+    plan_scores,
+)
 
 NOTHING = "nothing moves"
 
@@ -84,7 +90,7 @@ def _fit_and_score(job: tuple[str, int, EpisodeSet, TrainSettings]) -> dict:
     out = {"source": name, "repeat": repeat, "episodes": len(train), "steps": model.trained_steps}
     out["scores"] = {t: score(model.predict(e), e, mean) for t, e in tests.items()}
     if plan is not None:
-        out["planning"] = plan_scores(model, plan, _shared["plan_settings"].success_cm)
+        out["planning"] = plan_scores(model, plan, _shared["plan_settings"])
     return out
 
 
@@ -128,7 +134,12 @@ def run_experiment(
         }
     out = {"tests": tests_info, "nothing_moves": nothing_moves(tests), "blocks": blocks}
     if plan is not None:
-        out["planning"] = {"goals": int(len(plan.goal_object)), "candidates": int(plan.feasible.shape[1])}
+        out["planning"] = {
+            "planner": plan_settings.planner,
+            "goals": int(len(plan.goal_object)),
+            "strata": {s: int(mask.sum()) for s, mask in plan.strata.items()},
+            "baselines": baseline_scores(plan, plan_settings.success_cm),
+        }
     echo(f"training {len(jobs)} models on {workers} worker(s)")
     context = get_context("spawn")
     with ProcessPoolExecutor(
@@ -138,10 +149,27 @@ def run_experiment(
         for done, (b, future) in enumerate(futures, start=1):
             result = future.result()
             blocks[b]["sources"].setdefault(result["source"], []).append(result)
+            if plan is not None:
+                blocks[b]["planning"] = pooled_planning(blocks[b]["sources"], plan)
             echo(f"  [{done}/{len(jobs)}] {_describe(blocks[b], result)}")
             out["models"] = {"done": done, "total": len(jobs)}
             if progress is not None:
                 progress(out)
+    return out
+
+
+def pooled_planning(sources: dict[str, list[dict]], plan: PlanningTask) -> dict:
+    """Per source, its planning success pooled over the repeats trained so far: per goal the mean over repeats,
+    then the mean over goals with a 95 % bootstrap interval over goals, overall and per goal stratum."""
+    out = {}
+    for name, results in sources.items():
+        per_goal = np.mean([r["planning"]["goal_success"] for r in results], axis=0)
+        entry = {"model": float(per_goal.mean()), "ci95": bootstrap_ci(per_goal), "repeats": len(results)}
+        entry["strata"] = {}
+        for s, mask in plan.strata.items():
+            value = float(per_goal[mask].mean()) if mask.any() else float("nan")
+            entry["strata"][s] = {"model": value, "ci95": bootstrap_ci(per_goal[mask])}
+        out[name] = entry
     return out
 
 

@@ -1,20 +1,24 @@
 """Planning with a learned world model, scored in the real simulator.
 
-A goal is an object's end position in a held-out executed episode, from that episode's start: known to be
-reachable. For each goal, K candidate movements run from the same start: the goal episode's own genome, mutations
-of it (every waypoint moved by a Gaussian of ``sigma`` in normalised workspace units) and uniform random waypoint
-genomes (1 to 4 waypoints in the workspace box, as `random_waypoints` draws them). Every candidate is executed once
-in the simulator (seeded like any attempt, so the goal's own genome reproduces the goal) and its outcome kept, so
-that many models are scored against the same executions:
+A goal is an object's end position in a held-out executed episode (the object that moved most, at least
+``min_move_cm``, and ended on the table), from that episode's start: known to be reachable. Goals are counted per
+stratum: pushed by the arm (the arm touched the goal object), pushed by another object (the arm never touched it,
+yet it moved), moved far (``far_cm`` or more).
 
-- **model**: the candidate whose predicted end position of the goal object is nearest the goal is chosen (among
-  candidates predicted equally near, one at random: counted as their mean success); a success when that candidate's
-  true end position lies within ``success_cm`` of the goal;
-- **oracle**: a success when any candidate's does (the best of the same K, executed);
-- **random**: the share of the feasible candidates that succeed (a candidate chosen at random);
-- **share**: model / oracle.
+Two planners (``planner``):
 
-Infeasible candidates (no plan) are known before anything runs and are never chosen.
+- **cem** (the default): the cross-entropy method over waypoint genomes with the model alone
+  (`planning_cem.cem_plan`); only its choice is executed, once, in the simulator. The goal's own movement is never
+  among its samples;
+- **rank**: the model ranks K executed candidates (the goal episode's own genome, mutations of it, random genomes)
+  and the one predicted nearest is taken (ties: their mean success).
+
+Model-free baselines, executed once per test set and kept (``PlanningTask``): the goal's own movement replayed
+(seeded as its attempt was: 1.0 unless the simulator is not deterministic); ``candidates`` uniform random waypoint
+genomes per goal, as `random_waypoints` draws them, each executed: **one random genome** is their mean success, the
+**best of them** whether any succeeds (a search in the true simulator with a small budget). A success is the goal
+object ending within ``success_cm`` of the goal; an infeasible movement fails. Every rate has a 95 % bootstrap
+interval over goals.
 """
 
 from __future__ import annotations
@@ -23,9 +27,10 @@ import atexit
 import hashlib
 import json
 import os
+import time
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import asdict, dataclass
-from multiprocessing import get_context
+from dataclasses import dataclass
+from multiprocessing import get_context, parent_process
 from pathlib import Path
 
 import numpy as np
@@ -33,42 +38,104 @@ import numpy as np
 from babblegen.worldmodel.episodes import EpisodeSet, object_distance_moved
 from babblegen.worldmodel.model import WorldModel, object_state
 
-CANDIDATE_ATTEMPTS = 1_000_000_000  # attempt indices of the candidates: far from any run's own
+CANDIDATE_ATTEMPTS = 1_000_000_000  # attempt indices of the executed baselines: far from any run's own
+PLAN_ATTEMPTS = 2_000_000_000  # attempt indices of the planners' executed choices
 _STREAM = 0x91A4  # the goals' and candidates' own random stream
+PLANNERS = ("cem", "rank")
+GOAL_STRATA = {
+    "arm": "pushed by the arm",
+    "object": "pushed by another object",
+    "far": "moved far",
+}
 
 
 @dataclass(frozen=True)
 class PlanningSettings:
-    goals: int = 40
-    candidates: int = 16
+    planner: str = "cem"
+    goals: int = 200
+    candidates: int = 16  # random genomes per goal (baselines); rank: the candidates the model ranks
     success_cm: float = 3.0
     min_move_cm: float = 5.0  # a goal moves its object at least this far (so "leave it" is no success)
-    sigma: float = 0.1
+    far_cm: float = 15.0  # the "moved far" stratum
+    sigma: float = 0.1  # rank: the goal genome's mutations
     seed: int = 0
+    cem_samples: int = 64
+    cem_iterations: int = 4
+    cem_elites: int = 10
+
+    def __post_init__(self) -> None:
+        if self.planner not in PLANNERS:
+            raise ValueError(f"unknown planner {self.planner!r}; choose one of {', '.join(PLANNERS)}")
+
+    @property
+    def mutations(self) -> int:
+        """Executed mutations of the goal's genome per goal (the rank planner's; none for cem)."""
+        return (self.candidates - 1) // 2 if self.planner == "rank" else 0
 
     def key(self, test: EpisodeSet) -> str:
-        """What the executed candidates depend on: these settings and the test episodes."""
-        raw = json.dumps([asdict(self), sorted(set(test.source.tolist())), test.identity.tolist()]).encode()
+        """What the executed goals and baselines depend on: the settings that choose them, and the test set."""
+        parts = [self.planner == "rank", self.goals, self.candidates, self.min_move_cm, self.far_cm, self.sigma]
+        parts.append(self.seed)
+        raw = json.dumps([parts, sorted(set(test.source.tolist())), test.identity.tolist()]).encode()
         return hashlib.blake2b(raw, digest_size=12).hexdigest()
+
+
+def goal_command(kind: str, values, start, objects: list | None = None):
+    """The Command that runs ``values`` from a goal episode's recorded start (``start``: its drawn layout or a
+    made start's poses, as the sidecar's row records it; None: the task's scene) with its objects (the row's factors,
+    `ObjectSpec.factors`; None: the task's). The one place a recorded start becomes something the world runs."""
+    from babblegen.scene import ObjectSpec
+    from babblegen.world.rollout import Command
+
+    placement = None if start is None else np.asarray(start, float)
+    drawn = None if objects is None else tuple(ObjectSpec.from_factors(o) for o in objects)
+    return Command(kind, np.asarray(values, dtype=np.float64), placement, drawn)
+
+
+def bootstrap_ci(values: np.ndarray, level: float = 0.95, resamples: int = 10_000, seed: int = 0) -> list[float]:
+    """Percentile bootstrap interval of the mean of ``values`` (one per goal): goals drawn with replacement."""
+    v = np.asarray(values, dtype=np.float64)
+    if not len(v):
+        return [float("nan"), float("nan")]
+    rng = np.random.default_rng(seed)
+    means = v[rng.integers(0, len(v), (resamples, len(v)))].mean(axis=1)
+    tail = (1 - level) / 2
+    lo, hi = np.quantile(means, [tail, 1 - tail])
+    return [float(lo), float(hi)]
+
+
+def rate(values: np.ndarray) -> dict:
+    """A success rate over goals and its 95 % interval."""
+    v = np.asarray(values, dtype=np.float64)
+    return {"rate": float(v.mean()) if len(v) else float("nan"), "ci95": bootstrap_ci(v), "goals": int(len(v))}
 
 
 @dataclass
 class PlanningTask:
-    """Goals and the outcomes of their executed candidates."""
+    """Goals, where they start, and the outcomes of their executed baselines. Columns of the executed outcomes:
+    the goal's own movement, ``mutations`` mutations of it (rank), then the random genomes."""
 
+    source: np.ndarray  # (G,) str: the test dataset of the goal's episode
+    start: list  # per goal its recorded start (layout or poses; None: the task's scene)
     goal_object: np.ndarray  # (G,) object index
     goal_xy: np.ndarray  # (G, 2) metres
     first: np.ndarray  # (G, K, 4) the start's object states
     joints0: np.ndarray  # (G, 7) the arm's first joints
+    strata: dict[str, np.ndarray]  # name -> (G,) bool
+    mutations: int
     feasible: np.ndarray  # (G, C) bool
-    actions: list[list[np.ndarray]]  # per goal, per candidate: (T, 7) commanded joints (empty when infeasible)
+    actions: list[list[np.ndarray]]  # per goal, per column: (T, 7) commanded joints (empty when infeasible)
     final_xy: np.ndarray  # (G, C, 2) the goal object's true end position (nan when infeasible)
-    objects: np.ndarray | None = None  # (G, K, P) the start's objects (`object_vector`s; None: the task's)
+    specs: list | None = None  # per goal its start's objects as the sidecar records them (None: the task's)
+    objects: np.ndarray | None = None  # (G, K, P) those objects' property vectors, the model's inputs
 
     def successes(self, success_cm: float) -> np.ndarray:
-        """(G, C) whether each candidate reached its goal."""
-        d = np.linalg.norm(self.final_xy - self.goal_xy[:, None], axis=-1)
-        return np.nan_to_num(d, nan=np.inf) <= success_cm / 100
+        """(G, C) whether each executed column reached its goal."""
+        return reached(self.final_xy, self.goal_xy[:, None], success_cm)
+
+    @property
+    def random_columns(self) -> slice:
+        return slice(1 + self.mutations, self.feasible.shape[1])
 
     def save(self, path: Path, key: str) -> None:
         lengths = np.array([len(a) for row in self.actions for a in row], dtype=np.int64)
@@ -76,15 +143,20 @@ class PlanningTask:
         np.savez_compressed(
             path,
             key=key,
+            source=self.source,
+            start=json.dumps(self.start),
             goal_object=self.goal_object,
             goal_xy=self.goal_xy,
             first=self.first,
             joints0=self.joints0,
+            strata=json.dumps({k: v.tolist() for k, v in self.strata.items()}),
+            mutations=self.mutations,
             feasible=self.feasible,
             final_xy=self.final_xy,
+            specs=json.dumps(self.specs),
+            objects=np.zeros(0) if self.objects is None else self.objects,
             lengths=lengths,
             actions=np.concatenate(flat) if flat else np.zeros((0, 7)),
-            objects=np.zeros(0) if self.objects is None else self.objects,
         )
 
     @classmethod
@@ -93,67 +165,93 @@ class PlanningTask:
         if not path.is_file():
             return None
         with np.load(path) as f:
-            if str(f["key"]) != key or "objects" not in f.files:  # made before objects were stored: again
+            if "specs" not in f.files or str(f["key"]) != key:  # made before objects were stored: again
                 return None
             data = {name: f[name] for name in f.files}
         g, c = data["feasible"].shape
         ends = np.cumsum(data["lengths"])
         flat = np.split(data["actions"], ends[:-1]) if len(ends) else []
         actions = [[flat[i * c + j] for j in range(c)] for i in range(g)]
+        strata = {k: np.array(v, dtype=bool) for k, v in json.loads(str(data["strata"])).items()}
         return cls(
-            data["goal_object"], data["goal_xy"], data["first"], data["joints0"], data["feasible"], actions,
-            data["final_xy"], data["objects"] if data["objects"].size else None,
+            data["source"], json.loads(str(data["start"])), data["goal_object"], data["goal_xy"], data["first"],
+            data["joints0"], strata, int(data["mutations"]), data["feasible"], actions, data["final_xy"],
+            json.loads(str(data["specs"])), data["objects"] if data["objects"].size else None,
         )  # fmt: skip
 
 
+def reached(final_xy: np.ndarray, goal_xy: np.ndarray, success_cm: float) -> np.ndarray:
+    """Whether each end position lies within ``success_cm`` of its goal (nan: an infeasible movement, never)."""
+    d = np.linalg.norm(np.asarray(final_xy) - np.asarray(goal_xy), axis=-1)
+    return np.nan_to_num(d, nan=np.inf) <= success_cm / 100
+
+
+def arm_touched(test: EpisodeSet) -> np.ndarray:
+    """(E, K) whether the arm touched each object in each episode (the sidecar's ``touched``)."""
+    from babblegen.exporters.sidecar import read_attempts
+
+    rows = {}
+    for root in sorted(set(test.source.tolist())):
+        for r in read_attempts(root):
+            rows[(root, int(r["attempt"]))] = r.get("touched") or {}
+    names = test.scene.objects
+    touched = [rows.get((str(s), int(a)), {}) for s, a in zip(test.source, test.attempt, strict=True)]
+    return np.array([[bool(t.get(n, False)) for n in names] for t in touched]).reshape(len(test), len(names))
+
+
 def choose_goals(test: EpisodeSet, settings: PlanningSettings) -> list[tuple[int, int]]:
-    """(episode, object) goals: waypoint episodes whose most-moved object moved at least ``min_move_cm`` and ended
-    on the table, drawn at random without repeating an episode."""
+    """(episode, object) goals: executed episodes whose most-moved object moved at least ``min_move_cm`` and ended
+    on the table (waypoint episodes alone for rank, whose candidates mutate the goal's genome), drawn at random
+    without repeating an episode."""
     moved = object_distance_moved(test)
     final = test.final
-    x0, x1, y0, y1 = test.scene.table
+    scene = test.scene
+    x0, x1, y0, y1 = scene.table
     on_table = (final[..., 0] > x0) & (final[..., 0] < x1) & (final[..., 1] > y0) & (final[..., 1] < y1)
+    on_table &= final[..., 2] > scene.top + scene.half_heights[None] - 0.02
     pool = []
     for e in range(len(test)):
         k = int(np.argmax(moved[e]))
-        if test.commands[e]["kind"] == "ee_waypoints" and moved[e, k] * 100 >= settings.min_move_cm and on_table[e, k]:
+        if settings.planner == "rank" and test.commands[e]["kind"] != "ee_waypoints":
+            continue
+        if moved[e, k] * 100 >= settings.min_move_cm and on_table[e, k]:
             pool.append((e, k))
     rng = np.random.default_rng([settings.seed, _STREAM])
     order = rng.permutation(len(pool))[: settings.goals]
     return [pool[i] for i in sorted(order)]
 
 
-def candidate_genomes(genome: np.ndarray, n: int, sigma: float, rng: np.random.Generator) -> list[np.ndarray]:
-    """The goal's genome, then mutations of it, then uniform random waypoint genomes: ``n`` in all."""
-    mutated = (n - 1) // 2
-    out = [genome]
-    out += [genome + rng.normal(0.0, sigma, genome.shape) for _ in range(mutated)]
-    out += [rng.uniform(0.0, 1.0, (int(rng.integers(1, 5)), 3)) for _ in range(n - 1 - mutated)]
-    return out
+def random_genomes(n: int, rng: np.random.Generator, max_waypoints: int = 4) -> list[np.ndarray]:
+    """``n`` genomes as `random_waypoints` draws them: 1 to ``max_waypoints`` waypoints uniform in the box."""
+    return [rng.random((int(rng.integers(1, max_waypoints + 1)), 3)) for _ in range(n)]
 
 
 def build_task(test: EpisodeSet, settings: PlanningSettings, workers: int, cache: Path | None, echo=print):
-    """The goals of ``test`` and their candidates, executed (or read from ``cache`` when made for the same key)."""
+    """The goals of ``test`` and their baselines, executed (or read from ``cache`` when made for the same key)."""
     key = settings.key(test)
     if cache is not None and (task := PlanningTask.load(cache, key)) is not None:
-        echo(f"planning: {len(task.goal_object)} goals x {task.feasible.shape[1]} candidates read from {cache}")
+        echo(f"planning: {len(task.goal_object)} goals read from {cache}")
         return task
     goals = choose_goals(test, settings)
     if not goals:
         return None
     rng = np.random.default_rng([settings.seed, _STREAM, 1])
+    m, r = settings.mutations, settings.candidates - (1 if settings.planner == "rank" else 0) - settings.mutations
+    c = 1 + m + r
     jobs = []
     for g, (e, _) in enumerate(goals):
         command = test.commands[e]
-        genomes = candidate_genomes(
-            np.asarray(command["genome"], dtype=np.float64), settings.candidates, settings.sigma, rng
-        )
-        for c, genome in enumerate(genomes):
-            attempt = int(test.attempt[e]) if c == 0 else CANDIDATE_ATTEMPTS + g * settings.candidates + c
-            jobs.append((str(test.source[e]), attempt, genome.tolist(), command["layout"], command.get("objects")))
-    echo(f"planning: executing {len(goals)} goals x {settings.candidates} candidates ({len(jobs)} movements)")
+        own = np.asarray(command["genome"], dtype=np.float64)
+        genomes = [own] + [own + rng.normal(0.0, settings.sigma, own.shape) for _ in range(m)]
+        genomes += random_genomes(r, rng)
+        for j, genome in enumerate(genomes):
+            kind = command["kind"] if j == 0 else "ee_waypoints"
+            attempt = int(test.attempt[e]) if j == 0 else CANDIDATE_ATTEMPTS + g * c + j
+            jobs.append(
+                (str(test.source[e]), attempt, kind, genome.tolist(), command["layout"], command.get("objects"))
+            )
+    echo(f"planning: executing {len(goals)} goals x {c} movements ({len(jobs)}): own, {m} mutations, {r} random")
     results = execute(jobs, workers)
-    c = settings.candidates
     final_xy = np.full((len(goals), c, 2), np.nan)
     feasible = np.zeros((len(goals), c), dtype=bool)
     actions: list[list[np.ndarray]] = []
@@ -162,20 +260,28 @@ def build_task(test: EpisodeSet, settings: PlanningSettings, workers: int, cache
         for j in range(c):
             ok, action, final = results[g * c + j]
             feasible[g, j] = ok
-            row.append(action)
+            row.append(action if settings.planner == "rank" else np.zeros((0, 7)))  # rank alone needs them
             if ok:
                 final_xy[g, j] = final[k, :2]
         actions.append(row)
     episodes = [e for e, _ in goals]
+    objects = [k for _, k in goals]
+    moved = object_distance_moved(test)[episodes, objects]
+    touched = arm_touched(test)[episodes, objects]
     task = PlanningTask(
-        goal_object=np.array([k for _, k in goals]),
+        source=test.source[episodes],
+        start=[test.commands[e]["layout"] for e in episodes],
+        goal_object=np.array(objects),
         goal_xy=np.stack([test.final[e, k, :2] for e, k in goals]),
         first=object_state(test.first[episodes]),
         joints0=np.stack([test.states[e][0] for e in episodes]),
+        strata={"arm": touched, "object": ~touched, "far": moved * 100 >= settings.far_cm},
+        mutations=m,
         feasible=feasible,
         actions=actions,
         final_xy=final_xy,
-        objects=test.objects[episodes],
+        specs=[test.commands[e].get("objects") for e in episodes],
+        objects=None if test.objects is None else test.objects[episodes],
     )
     if cache is not None:
         cache.parent.mkdir(parents=True, exist_ok=True)
@@ -183,58 +289,165 @@ def build_task(test: EpisodeSet, settings: PlanningSettings, workers: int, cache
     return task
 
 
-def plan_scores(model: WorldModel, task: PlanningTask, success_cm: float) -> dict[str, float]:
-    """Success rates of the model's choice, the oracle's and a random choice, and the model's share of the oracle."""
+def by_stratum(task: PlanningTask, per_goal: np.ndarray) -> dict:
+    """A per-goal success (G,) as a rate with its interval, overall and per goal stratum."""
+    out = rate(per_goal)
+    out["strata"] = {s: rate(per_goal[mask]) for s, mask in task.strata.items()}
+    return out
+
+
+def baseline_scores(task: PlanningTask, success_cm: float) -> dict:
+    """The model-free baselines: one random genome, the best of the random genomes (executed), the goal's own
+    movement replayed; each overall and per stratum."""
     success = task.successes(success_cm)
-    picks = []
+    random = success[:, task.random_columns]
+    return {
+        "random": by_stratum(task, random.mean(axis=1)),
+        "best_of_random": by_stratum(task, random.any(axis=1).astype(float)),
+        "replay": by_stratum(task, success[:, 0].astype(float)),
+        "random_genomes": int(random.shape[1]),
+    }
+
+
+def rank_scores(model: WorldModel, task: PlanningTask, settings: PlanningSettings) -> dict:
+    """The rank planner: the model picks, among the executed candidates (the goal's own genome, its mutations and
+    the first random genomes: ``candidates`` in all), the one predicted nearest; per goal the success of its pick
+    (of the picks predicted equally near: their mean)."""
+    success = task.successes(settings.success_cm)
+    cols = np.arange(min(settings.candidates, task.feasible.shape[1]))
+    picks = np.zeros(len(task.goal_object))
     for g in range(len(task.goal_object)):
-        live = np.flatnonzero(task.feasible[g])
+        live = cols[task.feasible[g, cols]]
         if not len(live):
-            picks.append(False)
             continue
         objects = {} if task.objects is None else {"objects": [task.objects[g]] * len(live)}
         pred = model.rollout(
             [task.first[g]] * len(live), [task.actions[g][j] for j in live], [task.joints0[g]] * len(live), **objects
         )
         miss = np.linalg.norm(pred[:, task.goal_object[g], :2] - task.goal_xy[g], axis=-1)
-        # candidates predicted equally near (none predicted to move, say): one of them at random, as expected value
         tied = live[np.isclose(miss, miss.min(), rtol=0.0, atol=1e-9)]
-        picks.append(float(success[g, tied].mean()))
-    oracle = float(success.any(axis=1).mean())
-    rate = float(np.mean(picks))
-    random_rate = float(np.mean([success[g, task.feasible[g]].mean() if task.feasible[g].any() else 0.0
-                                 for g in range(len(success))]))  # fmt: skip
-    return {"model": rate, "oracle": oracle, "random": random_rate, "share": rate / oracle if oracle else float("nan")}
+        picks[g] = success[g, tied].mean()
+    out = by_stratum(task, picks)
+    out["model"] = out.pop("rate")
+    oracle = float(success[:, cols].any(axis=1).mean())
+    feasible = task.feasible[:, cols]
+    chance = [success[g, cols][feasible[g]].mean() if feasible[g].any() else 0.0 for g in range(len(picks))]
+    out.update(
+        oracle=oracle,
+        random=float(np.mean(chance)),  # a candidate chosen at random among the feasible ones
+        share=out["model"] / oracle if oracle else float("nan"),
+        goal_success=picks.tolist(),
+    )
+    return out
 
 
-# --- executing candidates in worker processes ------------------------------------------------------------------
+def cem_scores(model: WorldModel, task: PlanningTask, settings: PlanningSettings) -> dict:
+    """The cem planner: search with the model alone per goal, execute the choice once; its success per goal and
+    stratum, the search's wall time, and how the executed movement compares with the one the search scored."""
+    from babblegen.worldmodel.planning_cem import CemSettings, cem_plan
+
+    cem = CemSettings(samples=settings.cem_samples, iterations=settings.cem_iterations, elites=settings.cem_elites)
+    g_count = len(task.goal_object)
+    genomes: list[np.ndarray | None] = [None] * g_count
+    scored: list[np.ndarray | None] = [None] * g_count
+    search, search_cpu, rollouts = 0.0, 0.0, 0
+    for root in sorted(set(task.source.tolist())):
+        idx = np.flatnonzero(task.source == root)
+        result = cem_plan(
+            model, commander(root), task.first[idx], task.joints0[idx], task.goal_object[idx], task.goal_xy[idx],
+            cem, settings.seed, None if task.objects is None else task.objects[idx],
+        )  # fmt: skip
+        search += result.seconds
+        search_cpu += result.cpu_seconds
+        rollouts += result.rollouts
+        for j, g in enumerate(idx):
+            genomes[g], scored[g] = result.genomes[j], result.actions[j]
+    t0 = time.perf_counter()
+    run = [g for g in range(g_count) if genomes[g] is not None]
+    specs = task.specs or [None] * g_count
+    jobs = [
+        (str(task.source[g]), PLAN_ATTEMPTS + g, "ee_waypoints", genomes[g].tolist(), task.start[g], specs[g])
+        for g in run
+    ]
+    executed = dict(zip(run, execute(jobs, 1), strict=True))
+    final_xy = np.full((g_count, 2), np.nan)
+    differs, infeasible, gaps = np.zeros(g_count, bool), np.zeros(g_count, bool), []
+    for g, (ok, action, final) in executed.items():
+        if not ok:
+            infeasible[g] = True
+            continue
+        final_xy[g] = final[task.goal_object[g], :2]
+        n = min(len(action), len(scored[g]))
+        gap = float(np.abs(action[:n] - scored[g][:n]).max())
+        if gap > 1e-6 or len(action) < len(scored[g]):
+            differs[g] = True
+            gaps.append(gap)
+    ran = max(len(run), 1)
+    success = reached(final_xy, task.goal_xy, settings.success_cm).astype(float)
+    out = by_stratum(task, success)
+    out["model"] = out.pop("rate")
+    out.update(
+        goal_success=success.tolist(),
+        search_seconds=search,
+        search_cpu_seconds=search_cpu,
+        rollouts=rollouts,
+        execute_seconds=time.perf_counter() - t0,
+        no_plan=float(1 - len(run) / g_count),
+        executed={  # shares of the executed choices
+            "differs": float(differs.sum() / ran),
+            "infeasible": float(infeasible.sum() / ran),
+            "median_joint_gap": float(np.median(gaps)) if gaps else 0.0,
+        },
+    )
+    return out
+
+
+def plan_scores(model: WorldModel, task: PlanningTask, settings: PlanningSettings) -> dict:
+    """The planner's success with ``model`` (``model`` and ``ci95``, overall and per stratum)."""
+    return cem_scores(model, task, settings) if settings.planner == "cem" else rank_scores(model, task, settings)
+
+
+# --- the simulator and the planner's arm, per test dataset, in this process ---------------------------------------
 
 _worlds: dict = {}
+_commanders: dict = {}
 
 
-def _rollout(job: tuple[str, int, list, list | None, list | None]) -> tuple[bool, np.ndarray, np.ndarray | None]:
-    """One candidate in this process's World for its dataset (built on first use), from the goal episode's start
-    and objects (its sidecar row's; None: the task's)."""
+def _config(root: str):
     from babblegen.config import resumed_config
-    from babblegen.evaluation import seeded_rollout, warm_up
     from babblegen.exporters.sidecar import read_run_info
-    from babblegen.scene import ObjectSpec
+
+    return resumed_config(read_run_info(Path(root))["config"])
+
+
+def commander(root: str):
+    """The `planning_cem.Commander` of a dataset's task and world settings (built on first use)."""
+    from babblegen.worldmodel.planning_cem import Commander
+
+    if root not in _commanders:
+        _commanders[root] = Commander(_config(root))
+    return _commanders[root]
+
+
+def _rollout(job: tuple[str, int, str, list, list | None, list | None]) -> tuple[bool, np.ndarray, np.ndarray | None]:
+    """One movement in this process's World for its dataset (built on first use): (feasible, the recorded
+    commanded joints, the final object states)."""
+    from babblegen.evaluation import seeded_rollout, warm_up
     from babblegen.tasks import get_task
-    from babblegen.world.rollout import Command
     from babblegen.world.world import World
 
-    root, attempt, genome, layout, objects = job
+    root, attempt, kind, genome, start, objects = job
     if root not in _worlds:
-        if not _worlds:  # leave without the interpreter's teardown, where OMPL's binding reports spurious leaks
+        if not _worlds and parent_process() is not None:
+            # a worker leaves without the interpreter's teardown, where OMPL's binding reports spurious leaks (not
+            # the main process: its exit status, a test run's say, must stand)
             atexit.register(os._exit, 0)
-        config = resumed_config(read_run_info(Path(root))["config"])
+        config = _config(root)
         world = World(get_task(config.task), config.world, seed=config.seed)
         warm_up(world, None)
         _worlds[root] = (world, config.seed)
     world, seed = _worlds[root]
-    objects = None if objects is None else tuple(ObjectSpec.from_factors(o) for o in objects)
-    command = Command("ee_waypoints", np.asarray(genome), None if layout is None else np.asarray(layout), objects)
-    rollout = seeded_rollout(world, command, seed, attempt, defer_render=True)
+    rollout = seeded_rollout(world, goal_command(kind, genome, start, objects), seed, attempt, defer_render=True)
     if not rollout.feasible:
         return False, np.zeros((0, 7)), None
     frames = rollout.frames

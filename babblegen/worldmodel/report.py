@@ -11,6 +11,7 @@ import numpy as np
 
 from babblegen.worldmodel.episodes import STRATA
 from babblegen.worldmodel.experiment import NOTHING
+from babblegen.worldmodel.planning import GOAL_STRATA
 
 
 def _values(results: list[dict], path: tuple[str, ...]) -> np.ndarray:
@@ -34,6 +35,52 @@ def cell(values: np.ndarray, digits: int = 3) -> str:
 def _table(header: list[str], rows: list[list[str]]) -> list[str]:
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     return lines + ["| " + " | ".join(row) + " |" for row in rows]
+
+
+def interval(value: float, ci: list[float]) -> str:
+    """A rate with its 95 % interval."""
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return "-"
+    return f"{value:.3f} [{ci[0]:.3f}, {ci[1]:.3f}]"
+
+
+BASELINES = {
+    "random": "one random genome",
+    "best_of_random": "best of {n} random genomes, executed",
+    "replay": "the goal's own movement, replayed",
+}
+
+
+def planning_table(result: dict, block: dict) -> list[str]:
+    """Per source (pooled over repeats) and per baseline: success overall and per goal stratum, with 95 %
+    intervals over goals; for the cem planner, how often the executed movement differed from the scored one."""
+    p = result["planning"]
+    strata = list(p.get("strata", {}))
+    header = ["planner / baseline", "all"] + [f"{GOAL_STRATA.get(s, s)} ({p['strata'][s]})" for s in strata]
+    cem = p.get("planner") == "cem"
+    if cem:
+        header += ["executed differs / infeasible", "search s per model (CPU)"]
+    rows = []
+    for name, pooled in block.get("planning", {}).items():
+        row = [f"model trained on {name}", interval(pooled["model"], pooled["ci95"])]
+        row += [interval(pooled["strata"][s]["model"], pooled["strata"][s]["ci95"]) for s in strata]
+        if cem:
+            results = block["sources"][name]
+            differs = cell(_values(results, ("planning", "executed", "differs")), 2)
+            infeasible = cell(_values(results, ("planning", "executed", "infeasible")), 2)
+            wall = cell(_values(results, ("planning", "search_seconds")), 0)
+            cpu = cell(_values(results, ("planning", "search_cpu_seconds")), 0)
+            row += [f"{differs} / {infeasible}", f"{wall} ({cpu})"]
+        rows.append(row)
+    baselines = p.get("baselines", {})
+    for key, label in BASELINES.items():
+        if key not in baselines:
+            continue
+        b = baselines[key]
+        row = [label.format(n=baselines.get("random_genomes", "?")), interval(b["rate"], b["ci95"])]
+        row += [interval(b["strata"][s]["rate"], b["strata"][s]["ci95"]) for s in strata]
+        rows.append(row + (["-", "-"] if cem else []))
+    return _table(header, rows)
 
 
 def block_title(block: dict) -> str:
@@ -70,15 +117,29 @@ def markdown(result: dict) -> str:
     ]
     if "planning" in result:
         p = result["planning"]
-        lines += [f"Planning: {p['goals']} goals x {p['candidates']} candidates from {p['test']}.", ""]
+        if p.get("planner") == "cem":
+            ps = p.get("settings", {})
+            lines += [
+                f"Planning: {p['goals']} goals from {p.get('test', '?')} (an object's end position, from its "
+                "episode's start). Each model searches alone, with the cross-entropy method "
+                f"({ps.get('cem_samples', '?')} genomes x {ps.get('cem_iterations', '?')} iterations per goal); "
+                "its choice is executed once. Success: the goal object ends within "
+                f"{ps.get('success_cm', 3.0):g} cm of the goal; [95 % bootstrap interval over goals].",
+                "",
+            ]
+        else:
+            lines += [f"Planning (rank): {p['goals']} goals from {p.get('test', '?')}.", ""]
     for block in result["blocks"]:
         lines += [f"## {block_title(block)}", ""]
         header = ["trained on", "episodes"]
         for t in tests:
             header += [f"{t}: F1", f"{t}: error", f"{t}: macro F1"]
         planning = "planning" in result
-        if planning:
+        rank = planning and result["planning"].get("planner") == "rank"
+        if rank:
             header += ["planning: model", "oracle", "random", "share of oracle"]
+        elif planning:
+            header += ["planning: model"]
         rows = []
         for name, results in block["sources"].items():
             row = [name, cell(_values(results, ("episodes",)), 0)]
@@ -88,11 +149,14 @@ def markdown(result: dict) -> str:
                     cell(_values(results, ("scores", t, "all", "ratio")), 2),
                     cell(_values(results, ("scores", t, "macro", "f1"))),
                 ]
-            if planning:
+            if rank:
                 row += [cell(_values(results, ("planning", k)), 2) for k in ("model", "oracle", "random", "share")]
+            elif planning:
+                pooled = block.get("planning", {}).get(name)
+                row.append(interval(pooled["model"], pooled["ci95"]) if pooled else "-")
             rows.append(row)
         nothing = [NOTHING, "-"] + ["0", "1", "0"] * len(tests)
-        rows.append(nothing + (["-"] * 4 if planning else []))
+        rows.append(nothing + (["-"] * (4 if rank else 1) if planning else []))
         lines += _table(header, rows) + [""]
         t0 = tests[0]
         header = ["trained on"] + [f"{s}: F1 / error" for s in STRATA if s != "nothing_moved"]
@@ -107,6 +171,8 @@ def markdown(result: dict) -> str:
             row.append(cell(_values(results, ("scores", t0, "nothing_moved", "false_moves"))))
             rows.append(row)
         lines += [f"By outcome on {t0}:", ""] + _table(header, rows) + [""]
+        if planning and "baselines" in result["planning"]:
+            lines += ["Planning, by goal stratum:", ""] + planning_table(result, block) + [""]
     return "\n".join(lines)
 
 
