@@ -179,9 +179,9 @@ def test_varied_objects_are_read_per_episode_and_planned_with(varied_objects_dat
     from babblegen.worldmodel.planning import _rollout
 
     c = test.commands[0]
-    job = [str(test.source[0]), int(test.attempt[0]), c["genome"], c["layout"], c["objects"]]
+    job = [str(test.source[0]), int(test.attempt[0]), c["kind"], c["genome"], c["layout"], c["objects"]]
     np.testing.assert_array_equal(_rollout(tuple(job))[2], object_state(test.final[0]))
-    stand_ins = _rollout(tuple(job[:4] + [None]))[2]
+    stand_ins = _rollout(tuple(job[:5] + [None]))[2]
     assert np.abs(stand_ins[:, 2] - object_state(test.final[0])[:, 2]).max() > 0.002
 
 
