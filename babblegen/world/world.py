@@ -25,7 +25,7 @@ from babblegen.world.cameras import CameraRig
 from babblegen.world.exact import row_norm
 from babblegen.world.planning import ArmPlanner, Plan
 from babblegen.world.rollout import Command, Frames, Rollout
-from babblegen.world.settings import WorldSettings
+from babblegen.world.settings import WorldSettings, timed_path
 
 
 def _impulse(contact) -> tuple[float, float, float]:
@@ -251,12 +251,7 @@ class World:
 
     def _timed_path(self, path: np.ndarray) -> np.ndarray:
         """Joint targets at the control rate along a piecewise-linear path at max_joint_speed."""
-        s = self.settings
-        dt = 1.0 / s.control_freq
-        seg = np.abs(np.diff(path, axis=0)).max(axis=1) / s.max_joint_speed
-        t_knots = np.concatenate([[0.0], np.cumsum(seg)])
-        t = np.arange(0.0, t_knots[-1] + dt, dt)
-        return np.stack([np.interp(t, t_knots, path[:, j]) for j in range(path.shape[1])], axis=1)
+        return timed_path(path, self.settings)
 
     def _move_steps(self, out: np.ndarray, out_path: np.ndarray, approach: int) -> float:
         """The control steps of the movement out (``out``, timed from ``out_path``) that count toward

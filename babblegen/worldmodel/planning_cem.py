@@ -23,6 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from babblegen.world.exact import inv3, matmul, matvec, row_norm
+from babblegen.world.settings import timed_path
 
 NEARER = 0.001  # metres: a choice must be predicted to bring the goal object at least this much nearer its goal
 
@@ -131,12 +132,7 @@ class Commander:
     def _timed_path(self, path: np.ndarray) -> np.ndarray:
         """Joint targets at the control rate along a piecewise-linear path at max_joint_speed
         (`World._timed_path`)."""
-        s = self.settings
-        dt = 1.0 / s.control_freq
-        seg = np.abs(np.diff(path, axis=0)).max(axis=1) / s.max_joint_speed
-        t_knots = np.concatenate([[0.0], np.cumsum(seg)])
-        t = np.arange(0.0, t_knots[-1] + dt, dt)
-        return np.stack([np.interp(t, t_knots, path[:, j]) for j in range(path.shape[1])], axis=1)
+        return timed_path(path, self.settings)
 
     def actions(self, out_path: np.ndarray) -> np.ndarray | None:
         """(T, dof) the recorded ``action`` column of a movement along ``out_path`` (home -> targets), as
