@@ -42,16 +42,12 @@ def build_task(config: RunConfig):
 
 
 def build_starts(config: RunConfig):
-    """The run's start sampler (`babblegen.starts.StartSampler`), drawing objects too when the run does; None with
+    """The run's start sampler (`babblegen.starts.run_starts`), drawing objects too when the run does; None with
     fixed starts."""
-    from babblegen.objects import ObjectSampler
-    from babblegen.starts import StartSampler
+    from babblegen.starts import run_starts
+    from babblegen.tasks import get_task
 
-    w = config.world
-    if w.starts != "varied":
-        return None
-    objects = None if w.objects == "paper" else ObjectSampler(w.objects, w.num_objects, config.seed, w.object_ranges)
-    return StartSampler(build_task(config), config.seed, objects)
+    return run_starts(get_task(config.task), config.world, config.seed)
 
 
 def build_evaluator(task: Any, config: RunConfig, prepare=None, describe=None):

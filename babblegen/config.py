@@ -140,9 +140,10 @@ class RunConfig:
 
     def _check_placement(self, starts: int = 20) -> None:
         """Refuse drawn objects that the start regions cannot hold: the run's first starts are drawn here."""
-        from babblegen.assembly import build_starts
+        from babblegen.starts import run_starts
+        from babblegen.tasks import get_task
 
-        sampler = build_starts(self)
+        sampler = run_starts(get_task(self.task), self.world, self.seed)
         try:
             for attempt in range(starts):
                 sampler.draw(attempt)

@@ -14,11 +14,20 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from babblegen.objects import ObjectSampler
+from babblegen.objects import ObjectSampler, slot_task
 from babblegen.scene import ObjectSpec, TaskSpec
-from babblegen.world.settings import START_MODES
+from babblegen.world.settings import START_MODES, WorldSettings
 
-__all__ = ["NEW_START", "START_MODES", "Start", "StartDraw", "StartSampler", "layout_poses", "yaw_quaternion"]
+__all__ = [
+    "NEW_START",
+    "START_MODES",
+    "Start",
+    "StartDraw",
+    "StartSampler",
+    "layout_poses",
+    "run_starts",
+    "yaw_quaternion",
+]
 
 _STREAM = 0x5747A  # the start draws' own random stream, apart from the explorer's and the rollouts'
 _MAX_TRIES = 10_000
@@ -233,3 +242,13 @@ class StartSampler:
             if np.hypot(dx, dy) < r + gap:
                 return False
         return True
+
+
+def run_starts(task: TaskSpec, settings: WorldSettings, seed: int) -> StartSampler | None:
+    """A run's start sampler: its task's regions (or its object slots'), drawing objects too when the run does
+    (`babblegen.objects`); None with fixed starts."""
+    if settings.starts != "varied":
+        return None
+    drawn = settings.objects != "paper"
+    objects = ObjectSampler(settings.objects, settings.num_objects, seed, settings.object_ranges) if drawn else None
+    return StartSampler(slot_task(task, settings.objects, settings.num_objects), seed, objects)
