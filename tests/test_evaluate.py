@@ -70,7 +70,40 @@ def test_the_goal_genome_reproduces_the_goal(small_heldout_dataset):
     assert task.feasible.shape[1] == 1 + 3  # the goal's own movement and 3 random genomes, no mutations for cem
     baselines = baseline_scores(task, settings.success_cm)
     assert baselines["replay"]["rate"] == 1.0 and baselines["replay"]["ci95"] == [1.0, 1.0]
-    assert (task.strata["arm"] ^ task.strata["object"]).all()  # every goal pushed by the arm or by another object
+    assert not (task.strata["arm"] & task.strata["object"]).any()  # pushed by the arm, or by another object alone
+
+
+def test_goals_pushed_by_another_object_come_from_contact_events(small_heldout_dataset, tmp_path):
+    """An object the arm never touched that met another object (the sidecar's contact events) is a goal of the
+    "pushed by another object" stratum, drawn first up to its share; the other goals are each episode's most-moved
+    object, no episode twice."""
+    from babblegen.worldmodel.episodes import object_distance_moved, read_dataset
+    from babblegen.worldmodel.planning import PlanningSettings, choose_goals, contact_flags
+
+    root = tmp_path / "ds"
+    shutil.copytree(small_heldout_dataset, root)
+    test = read_dataset(root).episodes
+    names = test.scene.objects
+    e = len(test) - 1
+    path = root / "babblegen" / "attempts.jsonl"
+    rows = [json.loads(line) for line in path.read_text().splitlines()]
+    for row in rows:
+        if row["attempt"] == int(test.attempt[e]):
+            row["touched"] = {n: False for n in names}
+            row["object_contacts"] = {f"{names[1]}|{names[2]}": {"first_frame": 5, "impulse": 0.01}}
+    path.write_text("".join(json.dumps(r) + "\n" for r in rows))
+    test = read_dataset(root).episodes
+    touched, met = contact_flags(test)
+    assert not touched[e].any() and met[e].tolist() == [n in names[1:3] for n in names]
+
+    settings = PlanningSettings(goals=4, min_move_cm=0.0, object_share=0.25)
+    goals = choose_goals(test, settings)
+    moved = object_distance_moved(test)
+    assert (e, 1 + int(np.argmax(moved[e, 1:3]))) in goals  # the one such object, within the share (1 of 4)
+    assert len({g for g, _ in goals}) == len(goals) == min(4, len(test))
+    assert all(k == int(np.argmax(moved[g])) for g, k in goals if g != e)
+    alone = choose_goals(test, PlanningSettings(goals=4, min_move_cm=0.0, object_share=0.0))
+    assert all(k == int(np.argmax(moved[g])) for g, k in alone)  # no share: the most-moved objects alone
 
 
 def test_planning_records_the_planner_goals_and_intervals(small_noveb_dataset, small_heldout_dataset, tmp_path):

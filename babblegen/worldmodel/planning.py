@@ -1,9 +1,11 @@
 """Planning with a learned world model, scored in the real simulator.
 
-A goal is an object's end position in a held-out executed episode (the object that moved most, at least
-``min_move_cm``, and ended on the table), from that episode's start: known to be reachable. Goals are counted per
-stratum: pushed by the arm (the arm touched the goal object), pushed by another object (the arm never touched it,
-yet it moved), moved far (``far_cm`` or more).
+A goal is an object's end position in a held-out executed episode (an object that moved at least ``min_move_cm``
+and ended on the table), from that episode's start: known to be reachable. Goals are counted per stratum: pushed by
+the arm (the arm touched the goal object), pushed by another object (the arm never touched it, and the episode's
+recorded contact events hold it meeting another object), moved far (``far_cm`` or more). Objects pushed by another
+object are rare (a few in a hundred moved objects), so up to ``object_share`` of the goals are drawn from them; the
+rest are each episode's most-moved object.
 
 Two planners (``planner``):
 
@@ -57,6 +59,7 @@ class PlanningSettings:
     success_cm: float = 3.0
     min_move_cm: float = 5.0  # a goal moves its object at least this far (so "leave it" is no success)
     far_cm: float = 15.0  # the "moved far" stratum
+    object_share: float = 0.25  # at most this share of the goals drawn from objects pushed by another object
     sigma: float = 0.1  # rank: the goal genome's mutations
     seed: int = 0
     cem_samples: int = 64
@@ -75,7 +78,7 @@ class PlanningSettings:
     def key(self, test: EpisodeSet) -> str:
         """What the executed goals and baselines depend on: the settings that choose them, and the test set."""
         parts = [self.planner == "rank", self.goals, self.candidates, self.min_move_cm, self.far_cm, self.sigma]
-        parts.append(self.seed)
+        parts += [self.seed, self.object_share]
         raw = json.dumps([parts, sorted(set(test.source.tolist())), test.identity.tolist()]).encode()
         return hashlib.blake2b(raw, digest_size=12).hexdigest()
 
@@ -186,39 +189,65 @@ def reached(final_xy: np.ndarray, goal_xy: np.ndarray, success_cm: float) -> np.
     return np.nan_to_num(d, nan=np.inf) <= success_cm / 100
 
 
-def arm_touched(test: EpisodeSet) -> np.ndarray:
-    """(E, K) whether the arm touched each object in each episode (the sidecar's ``touched``)."""
+def contact_flags(test: EpisodeSet) -> tuple[np.ndarray, np.ndarray]:
+    """(E, K) twice, from the sidecar: whether the arm touched each object in each episode (``touched``), and
+    whether the object met another object in a contact that began during the episode (``object_contacts``; all
+    False for a dataset recorded without them)."""
+    from babblegen.contact_events import SEPARATOR, is_object_pair
     from babblegen.exporters.sidecar import read_attempts
 
     rows = {}
     for root in sorted(set(test.source.tolist())):
         for r in read_attempts(root):
-            rows[(root, int(r["attempt"]))] = r.get("touched") or {}
+            rows[(root, int(r["attempt"]))] = r
     names = test.scene.objects
-    touched = [rows.get((str(s), int(a)), {}) for s, a in zip(test.source, test.attempt, strict=True)]
-    return np.array([[bool(t.get(n, False)) for n in names] for t in touched]).reshape(len(test), len(names))
+    touched = np.zeros((len(test), len(names)), dtype=bool)
+    met = np.zeros_like(touched)
+    for e, key in enumerate(zip(test.source, test.attempt, strict=True)):
+        row = rows.get((str(key[0]), int(key[1])), {})
+        arm = row.get("touched") or {}
+        touched[e] = [bool(arm.get(n, False)) for n in names]
+        pairs = [pair for pair in row.get("object_contacts") or {} if is_object_pair(pair)]
+        parties = {p for pair in pairs for p in pair.split(SEPARATOR)}
+        met[e] = [n in parties for n in names]
+    return touched, met
 
 
 def choose_goals(test: EpisodeSet, settings: PlanningSettings) -> list[tuple[int, int]]:
-    """(episode, object) goals: executed episodes whose most-moved object moved at least ``min_move_cm`` and ended
-    on the table (waypoint episodes alone for rank, whose candidates mutate the goal's genome), drawn at random
-    without repeating an episode."""
+    """(episode, object) goals from executed episodes (waypoint episodes alone for rank, whose candidates mutate the
+    goal's genome), drawn at random without repeating an episode: up to ``object_share`` of them objects pushed by
+    another object (the most-moved such object of an episode), the rest each episode's most-moved object; every
+    goal object moved at least ``min_move_cm`` and ended on the table."""
     moved = object_distance_moved(test)
     final = test.final
     scene = test.scene
     x0, x1, y0, y1 = scene.table
     on_table = (final[..., 0] > x0) & (final[..., 0] < x1) & (final[..., 1] > y0) & (final[..., 1] < y1)
     on_table &= final[..., 2] > scene.top + scene.half_heights[None] - 0.02
-    pool = []
+    ok = (moved * 100 >= settings.min_move_cm) & on_table
+    touched, met = contact_flags(test)
+    by_object = ok & ~touched & met
+    pool, object_pool = [], []
     for e in range(len(test)):
-        k = int(np.argmax(moved[e]))
         if settings.planner == "rank" and test.commands[e]["kind"] != "ee_waypoints":
             continue
-        if moved[e, k] * 100 >= settings.min_move_cm and on_table[e, k]:
+        k = int(np.argmax(moved[e]))
+        if ok[e, k]:
             pool.append((e, k))
+        if by_object[e].any():
+            object_pool.append((e, int(np.argmax(np.where(by_object[e], moved[e], -1.0)))))
     rng = np.random.default_rng([settings.seed, _STREAM])
-    order = rng.permutation(len(pool))[: settings.goals]
-    return [pool[i] for i in sorted(order)]
+    order = rng.permutation(len(pool))
+    object_order = np.random.default_rng([settings.seed, _STREAM, 2]).permutation(len(object_pool))
+    goals = [object_pool[i] for i in object_order[: int(settings.goals * settings.object_share)]]
+    taken = {e for e, _ in goals}
+    for i in order:
+        if len(goals) >= settings.goals:
+            break
+        if pool[i][0] not in taken:
+            goals.append(pool[i])
+            taken.add(pool[i][0])
+    return sorted(goals)
 
 
 def random_genomes(n: int, rng: np.random.Generator, max_waypoints: int = 4) -> list[np.ndarray]:
@@ -267,7 +296,8 @@ def build_task(test: EpisodeSet, settings: PlanningSettings, workers: int, cache
     episodes = [e for e, _ in goals]
     objects = [k for _, k in goals]
     moved = object_distance_moved(test)[episodes, objects]
-    touched = arm_touched(test)[episodes, objects]
+    touched, met = contact_flags(test)
+    touched, met = touched[episodes, objects], met[episodes, objects]
     task = PlanningTask(
         source=test.source[episodes],
         start=[test.commands[e]["layout"] for e in episodes],
@@ -275,7 +305,7 @@ def build_task(test: EpisodeSet, settings: PlanningSettings, workers: int, cache
         goal_xy=np.stack([test.final[e, k, :2] for e, k in goals]),
         first=object_state(test.first[episodes]),
         joints0=np.stack([test.states[e][0] for e in episodes]),
-        strata={"arm": touched, "object": ~touched, "far": moved * 100 >= settings.far_cm},
+        strata={"arm": touched, "object": ~touched & met, "far": moved * 100 >= settings.far_cm},
         mutations=m,
         feasible=feasible,
         actions=actions,
