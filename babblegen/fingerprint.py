@@ -65,7 +65,7 @@ def fingerprint(world: Any) -> str:
     """This machine's fingerprint in ``world`` (a warm `babblegen.world.world.World`): the canonical movements
     simulated and their ends rendered with its settings (`CANONICAL`), hashed."""
     from babblegen.descriptors import make_descriptor
-    from babblegen.evaluation import seeded_rollout
+    from babblegen.seeded import seeded_rollout
     from babblegen.world.rollout import Command
 
     phash = make_descriptor("phash16")
@@ -80,7 +80,7 @@ def fingerprint(world: Any) -> str:
 
 def fingerprint_here(task_name: str, settings: Any) -> str:
     """The fingerprint of a fresh World of ``task_name`` with ``settings`` in this process."""
-    from babblegen.evaluation import warm_up
+    from babblegen.seeded import warm_up
     from babblegen.tasks import get_task
     from babblegen.world.world import World
 
