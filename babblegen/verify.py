@@ -1,5 +1,6 @@
 """`babblegen verify DIR`: re-simulate a sample of a dataset's episodes on this machine and compare them with what
-the dataset recorded, value for value: joint states, object poses, contacts, and the behaviour descriptor.
+the dataset recorded, value for value: joint states, object poses, contacts, the objects' contact impulses, and the
+behaviour descriptor.
 
 The episodes are rebuilt from the dataset's own description of them: the run's configuration (``run.json``, read as
 data and validated like any config), each attempt's genome and start (the sidecar). Nothing from the dataset is run
@@ -27,6 +28,8 @@ COLUMNS = {
     "observation.environment_state": "object_poses",
     "observation.contacts": "contacts",
 }
+# compared too where the dataset has them (datasets made before contact events were recorded do not)
+OPTIONAL_COLUMNS = {"observation.object_contacts": "object_contacts"}
 
 
 def sample(rows: list[dict], n: int) -> list[dict]:
@@ -37,13 +40,16 @@ def sample(rows: list[dict], n: int) -> list[dict]:
     return [executed[int(i)] for i in np.linspace(0, len(executed) - 1, n).round()]
 
 
-def first_difference(row: dict, recorded: dict[str, np.ndarray], rollout, descriptor) -> str | None:
-    """What differs between an episode as recorded and as re-simulated, or None."""
+def first_difference(
+    row: dict, recorded: dict[str, np.ndarray], rollout, descriptor, columns: dict[str, str] = COLUMNS
+) -> str | None:
+    """What differs between an episode as recorded and as re-simulated (``columns``: dataset column -> frames'
+    field), or None."""
     where = f"episode {row['episode_index']} (attempt {row['attempt']})"
     if not rollout.feasible:
         return f"{where}: not executed here ({rollout.reason})"
     frames = rollout.frames
-    for column, field in COLUMNS.items():
+    for column, field in columns.items():
         again = np.asarray(getattr(frames, field), dtype=np.float32).reshape(len(frames), -1)
         before = recorded[column]
         if again.shape != before.shape:
@@ -75,7 +81,9 @@ def verify(root: Path, episodes: int, echo=print) -> int:
         raise ConfigError(f"{root} holds no executed episode to verify")
     descriptor = build_descriptor(config)
     ds = load_dataset(root, info["repo_id"])
-    table = ds.hf_dataset.select_columns(["episode_index", *COLUMNS]).with_format("numpy")[:]
+    present = set(ds.hf_dataset.column_names)
+    columns = {**COLUMNS, **{c: f for c, f in OPTIONAL_COLUMNS.items() if c in present}}
+    table = ds.hf_dataset.select_columns(["episode_index", *columns]).with_format("numpy")[:]
     episode_of = np.asarray(table["episode_index"]).reshape(-1)
     world = World(get_task(config.task), config.world, seed=config.seed)
     try:
@@ -83,11 +91,11 @@ def verify(root: Path, episodes: int, echo=print) -> int:
         echo(fingerprint_line(info.get("fingerprint"), fingerprint(world)))
         for done, row in enumerate(rows, start=1):
             frames = np.flatnonzero(episode_of == row["episode_index"])
-            recorded = {c: np.asarray(table[c], dtype=np.float32)[frames].reshape(len(frames), -1) for c in COLUMNS}
+            recorded = {c: np.asarray(table[c], dtype=np.float32)[frames].reshape(len(frames), -1) for c in columns}
             rollout = seeded_rollout(
                 world, command_of(row), config.seed, row["attempt"], defer_render=True, describe=descriptor
             )
-            difference = first_difference(row, recorded, rollout, descriptor)
+            difference = first_difference(row, recorded, rollout, descriptor, columns)
             if difference is not None:
                 echo(f"{done - 1} of {len(rows)} sampled episodes reproduce exactly; then {difference}")
                 for line in differences_from_here(info):

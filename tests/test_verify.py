@@ -64,6 +64,28 @@ def test_a_recorded_value_that_differs_is_named_with_a_non_zero_exit(small_noveb
     assert lines[lines.index(line) + 1 :] == [expected]
 
 
+def test_a_changed_contact_impulse_is_named(small_noveb_dataset: Path, tmp_path, capsys):
+    """The objects' per-frame contact impulses are compared too: one value changed in the parquet is found."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    copy = tmp_path / "copy"
+    shutil.copytree(small_noveb_dataset, copy)
+    (path,) = sorted((copy / "data").rglob("*.parquet"))[:1]
+    table = pq.read_table(path)
+    column = "observation.object_contacts"
+    values = table[column].to_pylist()
+    episodes = table["episode_index"].to_pylist()
+    row = episodes.index(0) + 3  # episode 0 (the first verify samples), frame 3
+    values[row] = [v + 0.5 for v in values[row]]
+    table = table.set_column(table.column_names.index(column), column, pa.array(values, type=table[column].type))
+    pq.write_table(table, path)
+    assert main(["verify", str(copy), "--episodes", "3"]) == 1
+    line = next(x for x in capsys.readouterr().out.splitlines() if " sampled episodes " in x)
+    assert line.startswith("0 of 3 sampled episodes reproduce exactly; then episode 0")
+    assert f"{column} differs from frame 3 on (by up to 0.5)" in line
+
+
 def test_verify_refuses_what_is_not_a_dataset(tmp_path, capsys):
     assert main(["verify", str(tmp_path)]) == 2
     assert "is not a babblegen dataset" in capsys.readouterr().err
