@@ -213,11 +213,14 @@ def contact_flags(test: EpisodeSet) -> tuple[np.ndarray, np.ndarray]:
     return touched, met
 
 
-def choose_goals(test: EpisodeSet, settings: PlanningSettings) -> list[tuple[int, int]]:
+def choose_goals(
+    test: EpisodeSet, settings: PlanningSettings, flags: tuple[np.ndarray, np.ndarray] | None = None
+) -> list[tuple[int, int]]:
     """(episode, object) goals from executed episodes (waypoint episodes alone for rank, whose candidates mutate the
     goal's genome), drawn at random without repeating an episode: up to ``object_share`` of them objects pushed by
     another object (the most-moved such object of an episode), the rest each episode's most-moved object; every
-    goal object moved at least ``min_move_cm`` and ended on the table."""
+    goal object moved at least ``min_move_cm`` and ended on the table. ``flags``: `contact_flags` of ``test``, when
+    already read."""
     moved = object_distance_moved(test)
     final = test.final
     scene = test.scene
@@ -225,7 +228,7 @@ def choose_goals(test: EpisodeSet, settings: PlanningSettings) -> list[tuple[int
     on_table = (final[..., 0] > x0) & (final[..., 0] < x1) & (final[..., 1] > y0) & (final[..., 1] < y1)
     on_table &= final[..., 2] > scene.top + scene.half_heights[None] - 0.02
     ok = (moved * 100 >= settings.min_move_cm) & on_table
-    touched, met = contact_flags(test)
+    touched, met = flags if flags is not None else contact_flags(test)
     by_object = ok & ~touched & met
     pool, object_pool = [], []
     for e in range(len(test)):
@@ -261,7 +264,8 @@ def build_task(test: EpisodeSet, settings: PlanningSettings, workers: int, cache
     if cache is not None and (task := PlanningTask.load(cache, key)) is not None:
         echo(f"planning: {len(task.goal_object)} goals read from {cache}")
         return task
-    goals = choose_goals(test, settings)
+    flags = contact_flags(test)
+    goals = choose_goals(test, settings, flags)
     if not goals:
         return None
     rng = np.random.default_rng([settings.seed, _STREAM, 1])
@@ -296,8 +300,7 @@ def build_task(test: EpisodeSet, settings: PlanningSettings, workers: int, cache
     episodes = [e for e, _ in goals]
     objects = [k for _, k in goals]
     moved = object_distance_moved(test)[episodes, objects]
-    touched, met = contact_flags(test)
-    touched, met = touched[episodes, objects], met[episodes, objects]
+    touched, met = flags[0][episodes, objects], flags[1][episodes, objects]
     task = PlanningTask(
         source=test.source[episodes],
         start=[test.commands[e]["layout"] for e in episodes],
