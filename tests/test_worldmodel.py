@@ -10,14 +10,17 @@ import pytest
 
 from babblegen.scene import ObjectSpec
 from babblegen.worldmodel.episodes import (
+    OUTLINE_RAYS,
     PROPERTIES,
     PROPERTY,
     STRATA,
+    SUMMARY,
     EpisodeSet,
     Scene,
     episode_objects,
     object_vector,
     outcomes,
+    outline,
 )
 from babblegen.worldmodel.metrics import mean_displacement, score
 from babblegen.worldmodel.model import ArmFilter, apply, features, object_state, targets
@@ -314,7 +317,7 @@ def test_each_episode_s_objects_set_its_frames_heights_and_strata():
     assert np.abs(x[1, 0] - x[0, 0]).max() > 0.1
     zeroed, _ = features(SCENE, radii, now, before, arm0, arm1, props, properties=False)
     k = len(SCENE.objects)
-    own = slice(k + 9, k + 9 + len(PROPERTIES))  # after which (k), own motion and height (5), edges (4)
+    own = slice(k + 9, k + 9 + SUMMARY)  # after which (k), own motion and height (5), edges (4)
     assert (zeroed[..., own] == 0).all() and np.abs(x[..., own]).max() > 0.5
     low = pose(0.8, 0.2, 0.715)
     e = episodes([REST, REST], [[low, REST[1], REST[2]]] * 2)
@@ -323,6 +326,57 @@ def test_each_episode_s_objects_set_its_frames_heights_and_strata():
     # a cube that settled 3.5 cm below its upright resting height (as a hull may, on another face) and stays there
     e = episodes([[low, REST[1], REST[2]]], [[low, REST[1], REST[2]]])
     assert STRATA[outcomes(e)[1][0]] == "nothing_moved"
+
+
+def test_an_object_s_outline_is_how_far_it_reaches_along_each_ray():
+    """A 10 x 6 cm box reaches 5 cm along x, 3 cm along y and, along the diagonal, to its long side at 3 / sin 45
+    cm; a cylinder its radius everywhere; a capsule its radius plus its straight half along x. An ell's origin is
+    its bounding box's centre, over the notch between its bars: the rays into the notch meet none of it (0), and the
+    outline is what tells it from the box it fills."""
+    step = 5e-4
+    box = outline(ObjectSpec("b", "box", (0.05, 0.03, 0.04), GRAY, 0.1, (0, 0)), step)
+    assert box.shape == (OUTLINE_RAYS,)
+    quarter = OUTLINE_RAYS // 4
+    assert box[0] == pytest.approx(0.05, abs=step) and box[2 * quarter] == pytest.approx(0.05, abs=step)
+    assert box[quarter] == pytest.approx(0.03, abs=step) and box[3 * quarter] == pytest.approx(0.03, abs=step)
+    assert box[quarter // 2] == pytest.approx(0.03 / np.sin(np.pi / 4), abs=step)
+    can = outline(ObjectSpec("c", "cylinder", (0.04, 0.05), GRAY, 0.1, (0, 0)), step)
+    np.testing.assert_allclose(can, 0.04, atol=step)
+    capsule = outline(ObjectSpec("p", "capsule", (0.03, 0.04), GRAY, 0.1, (0, 0)), step)
+    assert capsule[0] == pytest.approx(0.07, abs=step) and capsule[quarter] == pytest.approx(0.03, abs=step)
+    ell_spec = ObjectSpec("l", "ell", (0.06, 0.05, 0.015, 0.02), GRAY, 0.1, (0, 0))
+    ell = outline(ell_spec, step)
+    # bars: along x over y in [-6.5, -3.5] cm of the origin, along y over x in [3, 6] cm (the bounding box's centre)
+    assert ell[0] == pytest.approx(0.06, abs=step) and ell[3 * quarter] == pytest.approx(0.065, abs=step)
+    assert (ell[quarter + 1 : 2 * quarter + 2] == 0).all()  # up and to the left: the notch
+    v = object_vector(ell_spec)
+    np.testing.assert_allclose(v[SUMMARY:], ell)
+    assert [PROPERTIES[i] for i in (SUMMARY, len(PROPERTIES) - 1)] == ["outline_00", f"outline_{OUTLINE_RAYS - 1:02d}"]
+
+
+def test_with_outlines_each_arm_sphere_reads_how_far_it_passes_outside_the_object():
+    """A 3 cm sphere resting against the +x face of a 10 x 6 cm box reads 0 cm outside it, and 2 cm when 2 cm
+    further out; against a cube of 5 cm half extents turned a quarter turn, the same. Without outlines the inputs
+    are those of a model that reads none: the properties before the outline, and no sphere gap."""
+    flat = ObjectSpec("box", "box", (0.05, 0.03, 0.04), GRAY, 0.1, (0, 0))
+    props = SCENE.properties.copy()[None]
+    props[0, 0] = object_vector(flat)
+    now = object_state(np.array([REST]))
+    radii = np.full(1, 0.03)
+    plain, _ = features(SCENE, radii, now, now, np.zeros((1, 1, 3)), np.zeros((1, 1, 3)), props)
+    k = len(SCENE.objects)
+    for offset, outside in ((0.0, 0.0), (0.02, 0.02)):
+        for yaw, half in ((0.0, 0.05), (np.pi / 2, 0.03)):
+            turned = now.copy()
+            turned[0, 0, 3] = yaw
+            ball = turned[:, :1, :3] + np.array([half + 0.03 + offset, 0.0, 0.0])  # along world x
+            x, _ = features(SCENE, radii, turned, turned, ball, ball, props, outlines=True)
+            assert x.shape[-1] == plain.shape[-1] + OUTLINE_RAYS + 1  # one sphere: one gap
+            assert x[0, 0, -1] == pytest.approx(outside * 10, abs=0.01)  # decimetres
+    # the outline itself sits right after the summary properties, in decimetres
+    own = slice(k + 9 + SUMMARY, k + 9 + SUMMARY + OUTLINE_RAYS)
+    x, _ = features(SCENE, radii, now, now, np.zeros((1, 1, 3)), np.zeros((1, 1, 3)), props, outlines=True)
+    np.testing.assert_allclose(x[0, 0, own], outline(flat) * 10, atol=1e-5)
 
 
 def sliding(masses: list[float], rng: np.random.Generator, frames: int = 6) -> EpisodeSet:
@@ -366,15 +420,16 @@ def test_a_model_tells_objects_apart_by_their_properties():
     np.testing.assert_array_equal(test.poses[0][0], test.poses[1][0])
     moved = {}
     try:
-        for object_inputs in (True, False):
+        for object_inputs, outlines in ((True, True), (False, False), (True, False)):
             settings = TrainSettings(steps=400, check=100, patience=3, hidden=64, batch=256)
-            model = WorldModel.fit(train, replace(settings, object_inputs=object_inputs))
+            model = WorldModel.fit(train, replace(settings, object_inputs=object_inputs, outlines=outlines))
             pred = model.predict(test)
-            moved[object_inputs] = pred[:, slot, 0] - test.first[:, slot, 0]
+            moved[object_inputs, outlines] = pred[:, slot, 0] - test.first[:, slot, 0]
     finally:
         torch.set_num_threads(threads)
-    assert moved[True][0] == pytest.approx(0.05, abs=0.01) and abs(moved[True][1]) < 0.005
-    assert moved[False][0] == moved[False][1]
+    for outlines in (False, True):  # the outlines (the same cube's in every episode) change nothing of it
+        assert moved[True, outlines][0] == pytest.approx(0.05, abs=0.01) and abs(moved[True, outlines][1]) < 0.005
+    assert moved[False, False][0] == moved[False, False][1]
     # the same model, asked with the scene's objects instead (rollout's default), sees other objects
     first = [object_state(p[0]) for p in test.poses]
     assert model.rollout(first, test.actions, [s[0] for s in test.states]).shape == (2, 3, 4)

@@ -97,6 +97,12 @@ def register(sub) -> None:
         help="at most this many gradient steps per model, stopped early on its own validation episodes "
         "[default: 12000]",
     )
+    p.add_argument(
+        "--outlines",
+        action="store_true",
+        help="the model also reads each object's outline (16 rays from its origin) and how far each arm sphere passes "
+        "outside it: for objects whose shape family no training object has",
+    )
     p.add_argument("--seed", type=int, default=0, help="repeat r trains with seed SEED + r [default: 0]")
     p.add_argument("--workers", type=int, default=None, help="processes [default: one per core]")
     p.add_argument("--out", type=Path, default=Path("evaluation"), help="output folder [default: evaluation]")
@@ -161,7 +167,8 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         plan = build_task(tests[plan_test], plan_settings, workers, args.out / f"planning_{plan_test}.npz")
         if plan is None:
             print(f"planning: {plan_test} holds no goal (no episode moved an object 5 cm onto the table): skipped")
-    train = TrainSettings(seed=args.seed) if args.steps is None else TrainSettings(steps=args.steps, seed=args.seed)
+    steps = {} if args.steps is None else {"steps": args.steps}
+    train = TrainSettings(seed=args.seed, outlines=args.outlines, **steps)
     if train.steps < 1:
         raise EvaluationError(f"--steps must be at least 1, got {train.steps}")
     modes = ["attempts", "episodes"] if args.equal == "both" else [args.equal]

@@ -30,6 +30,7 @@ class EvaluationError(ConfigError):
     """Bad input to the evaluation: reported on one line, exit status 2."""
 
 
+OUTLINE_RAYS = 16
 # An object's properties as the world model reads them (`object_vector`): one number each, SI units.
 PROPERTIES = (
     *(f"shape_{s}" for s in SHAPES),  # one-hot over babblegen.scene.SHAPES
@@ -45,8 +46,12 @@ PROPERTIES = (
     "dynamic_friction",
     "restitution",
     "yaw_symmetry",  # rad: the turn about the vertical after which it looks the same (0: any turn)
+    # m: its outline, resting upright: how far it reaches from its origin along each of OUTLINE_RAYS directions of
+    # its own frame (ray i at angle 2 pi i / OUTLINE_RAYS from its x axis; 0 where the ray meets none of it)
+    *(f"outline_{i:02d}" for i in range(OUTLINE_RAYS)),
 )
 PROPERTY = {name: i for i, name in enumerate(PROPERTIES)}
+SUMMARY = PROPERTY["outline_00"]  # the properties before the outline: shape, sizes, mass, material, symmetry
 
 
 def yaw_symmetry(spec: ObjectSpec) -> float:
@@ -81,6 +86,35 @@ def half_extents(spec: ObjectSpec) -> np.ndarray:
     return high
 
 
+def _inside_footprint(part, xy: np.ndarray) -> np.ndarray:
+    """(N,) whether (N, 2) points of the object's frame lie over ``part``'s footprint, resting upright."""
+    s = np.asarray(part.size) + 1e-9  # points on the boundary count as over it
+    d = xy - np.asarray(part.offset[:2])
+    if part.kind == "box":
+        return (np.abs(d[:, 0]) <= s[0]) & (np.abs(d[:, 1]) <= s[1])
+    if part.kind in ("cylinder", "sphere"):
+        return np.hypot(d[:, 0], d[:, 1]) <= s[0]
+    if part.kind == "capsule":  # axis x: within its radius of the segment between the caps' centres
+        return np.hypot(np.maximum(np.abs(d[:, 0]) - s[1], 0.0), d[:, 1]) <= s[0]
+    from scipy.spatial import Delaunay  # hull: inside the convex hull of its points seen from above
+
+    return Delaunay(np.asarray(part.vertices)[:, :2]).find_simplex(d) >= 0
+
+
+def outline(spec: ObjectSpec, step: float = 5e-4) -> np.ndarray:
+    """(OUTLINE_RAYS,) how far the object reaches from its origin along each ray of its own frame, resting upright
+    (the farthest point of its footprint on the ray, to ``step``; 0 where the ray meets none of it): what tells an
+    ell's notch from a box's corner, whatever the shape family."""
+    angles = 2 * np.pi * np.arange(OUTLINE_RAYS) / OUTLINE_RAYS
+    t = np.arange(0.0, spec.footprint_radius + 2 * step, step)
+    points = (t[None, :, None] * np.stack([np.cos(angles), np.sin(angles)], axis=-1)[:, None, :]).reshape(-1, 2)
+    inside = np.zeros(len(points), dtype=bool)
+    for part in spec.parts():
+        inside |= _inside_footprint(part, points)
+    inside = inside.reshape(OUTLINE_RAYS, len(t))
+    return np.where(inside.any(axis=1), t[::-1][np.argmax(inside[:, ::-1], axis=1)], 0.0)
+
+
 def object_vector(spec: ObjectSpec) -> np.ndarray:
     """The object's geometry and material as `PROPERTIES` lists them."""
     out = np.zeros(len(PROPERTIES))
@@ -95,6 +129,7 @@ def object_vector(spec: ObjectSpec) -> np.ndarray:
     out[PROPERTY["dynamic_friction"]] = spec.dynamic_friction
     out[PROPERTY["restitution"]] = spec.restitution
     out[PROPERTY["yaw_symmetry"]] = yaw_symmetry(spec)
+    out[SUMMARY:] = outline(spec)
     return out
 
 

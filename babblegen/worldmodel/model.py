@@ -28,7 +28,17 @@ import numpy as np
 import torch
 from torch import nn
 
-from babblegen.worldmodel.episodes import MOVED, PROPERTIES, PROPERTY, EpisodeSet, EvaluationError, Scene, yaw_of
+from babblegen.worldmodel.episodes import (
+    MOVED,
+    OUTLINE_RAYS,
+    PROPERTIES,
+    PROPERTY,
+    SUMMARY,
+    EpisodeSet,
+    EvaluationError,
+    Scene,
+    yaw_of,
+)
 
 NEAREST = 8  # arm spheres per object and frame the network sees (the nearest to it over the frame's motion)
 POS, VEL = 10.0, 100.0  # positions in decimetres, motions per frame in centimetres: inputs near unit scale
@@ -132,7 +142,19 @@ def property_inputs(objects: np.ndarray) -> np.ndarray:
     for name, unit in LOGS.items():
         out[..., PROPERTY[name]] = np.log10(np.maximum(out[..., PROPERTY[name]], 1e-12) / unit)
     out[..., PROPERTY["yaw_symmetry"]] /= np.pi
+    out[..., SUMMARY:] *= POS
     return out
+
+
+def outline_at(outlines: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    """(...) how far an object reaches towards each of (..., 2) points of its own frame: its (..., OUTLINE_RAYS)
+    outline read between the two rays either side of the point's direction, linearly."""
+    at = np.arctan2(xy[..., 1], xy[..., 0]) % (2 * np.pi) / (2 * np.pi) * OUTLINE_RAYS
+    low = np.floor(at).astype(int) % OUTLINE_RAYS
+    frac = at - np.floor(at)
+    r0 = np.take_along_axis(outlines, low[..., None], axis=-1)[..., 0]
+    r1 = np.take_along_axis(outlines, ((low + 1) % OUTLINE_RAYS)[..., None], axis=-1)[..., 0]
+    return (1 - frac) * r0 + frac * r1
 
 
 def scene_objects(scene: Scene, objects: np.ndarray | None, n: int) -> np.ndarray:
@@ -150,13 +172,15 @@ def features(
     arm1: np.ndarray,
     objects: np.ndarray | None = None,
     properties: bool = True,
+    outlines: bool = False,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Inputs of the step network for N scenes at one frame: ``now`` and ``before`` (N, K, 4) the objects' states
     in this frame and the one before, ``arm0`` and ``arm1`` (N, S, 3) the arm's spheres in this frame and the next,
     ``objects`` the objects' `object_vector`s ((N, K, P); None: the task's). Returns (N, K, F), one row per object,
     in its own frame (see the module docstring), and (N, K) how near the arm's surface passes the object's centre
     this frame, metres. ``properties=False`` gives zeros for the property inputs (the objects' geometry still sets
-    their frames and resting heights)."""
+    their frames and resting heights). ``outlines``: each object also reads its outline and, per arm sphere, how far
+    the sphere passes outside it seen from above (the distance to the outline, less the sphere's radius)."""
     n, k = now.shape[:2]
     objects = scene_objects(scene, objects, n)
     sym = objects[..., PROPERTY["yaw_symmetry"]]  # (N, K)
@@ -181,6 +205,10 @@ def features(
     closest = r0 + np.take_along_axis(along, near, axis=2)[..., None] * (r1 - r0)  # where it passes nearest
     parts = [to_frame(r0[..., :2]), r0[..., 2:], to_frame(r1[..., :2]), r1[..., 2:], radii[near][..., None]]
     parts += [to_frame(closest[..., :2]), closest[..., 2:], np.take_along_axis(gap, near, axis=2)[..., None]]
+    if outlines:
+        flat = to_frame(closest[..., :2])  # (N, K, M, 2)
+        reach = outline_at(np.broadcast_to(objects[:, :, None, SUMMARY:], (*flat.shape[:3], OUTLINE_RAYS)), flat)
+        parts.append((np.linalg.norm(flat, axis=-1) - reach - radii[near])[..., None])
     arm = np.concatenate(parts, axis=-1).reshape(n, k, -1) * POS
     # the object itself: its last motion, its height over resting, the table's edges, its properties
     rest = scene.top + objects[..., PROPERTY["half_height"]]  # (N, K)
@@ -198,6 +226,7 @@ def features(
     x0, x1, y0, y1 = scene.table
     edges = np.stack([now[..., 0] - x0, x1 - now[..., 0], now[..., 1] - y0, y1 - now[..., 1]], axis=-1) * POS
     props = property_inputs(objects) if properties else np.zeros(objects.shape)
+    props = props if outlines else props[..., :SUMMARY]
     # the others, in the scene's order: where each stands, its last motion and height, its size and mass, in this
     # object's frame
     rel = now[:, None, :, :2] - now[:, :, None, :2]  # (N, K, K, 2): object j relative to object i
@@ -279,11 +308,14 @@ class TrainSettings:
     lr: float = 2e-3
     seed: int = 0
     object_inputs: bool = True  # False: the objects' properties are no input (zeros), an ablation
+    outlines: bool = False  # True: the objects' outlines are inputs too, and the arm's distance to them (`features`)
 
 
-def training_rows(episodes: EpisodeSet, rng: np.random.Generator, properties: bool = True) -> tuple[np.ndarray, ...]:
+def training_rows(
+    episodes: EpisodeSet, rng: np.random.Generator, properties: bool = True, outlines: bool = False
+) -> tuple[np.ndarray, ...]:
     """The step network's rows (inputs, targets, moving, weight) of every frame of every episode, with the true arm
-    and object states; ``properties``: as `features`'."""
+    and object states; ``properties`` and ``outlines``: as `features`'."""
     scene = episodes.scene
     spheres = ArmSpheres(scene.robot)
     xs, ys, ms, ws = [], [], [], []
@@ -291,7 +323,9 @@ def training_rows(episodes: EpisodeSet, rng: np.random.Generator, properties: bo
         state = object_state(poses)
         before = np.concatenate([state[:1], state[:-2]])
         balls = spheres(q)
-        x, gap = features(scene, spheres.radii, state[:-1], before, balls[:-1], balls[1:], objects, properties)
+        x, gap = features(
+            scene, spheres.radii, state[:-1], before, balls[:-1], balls[1:], objects, properties, outlines
+        )
         y, m = targets(scene, state[:-1], state[1:], objects)
         _, was = targets(scene, before, state[:-1], objects)
         # quiet rows (nothing near or moving, before or now) teach little but "stays": keep one in QUIET
@@ -318,10 +352,18 @@ class WorldModel:
     """`ArmFilter` and `StepNet` together; `fit` on episodes, `predict` where objects end up."""
 
     def __init__(
-        self, scene: Scene, arm: ArmFilter, net: StepNet, mean: np.ndarray, std: np.ndarray, object_inputs: bool = True
+        self,
+        scene: Scene,
+        arm: ArmFilter,
+        net: StepNet,
+        mean: np.ndarray,
+        std: np.ndarray,
+        object_inputs: bool = True,
+        outlines: bool = False,
     ):
         self.scene, self.arm, self.net, self.mean, self.std = scene, arm, net, mean, std
         self.object_inputs = object_inputs  # False: the objects' properties are no input (`TrainSettings`)
+        self.outlines = outlines  # True: the objects' outlines are inputs too (`TrainSettings`)
         self.spheres = ArmSpheres(scene.robot)
         self.trained_steps = 0
         self.gate = 0.0  # a frame's motion is applied where the "moves" logit exceeds this
@@ -335,7 +377,7 @@ class WorldModel:
         n_val = int(len(episodes) * s.validation) if len(episodes) >= 10 else 0
         train, val = episodes.take(np.sort(order[n_val:])), episodes.take(np.sort(order[:n_val]))
         arm = ArmFilter.fit(train.actions, train.states)
-        x, y, m, w = training_rows(train, rng, s.object_inputs)
+        x, y, m, w = training_rows(train, rng, s.object_inputs, s.outlines)
         # an input that never varies in training (a shape no training object has) teaches nothing: read as 0
         mean, std = x.mean(axis=0), x.std(axis=0)
         std = np.where(std < 1e-6, np.inf, std + 1e-3).astype(np.float32)
@@ -345,9 +387,8 @@ class WorldModel:
             return [torch.from_numpy(((xr - mean) / std).astype(np.float32))] + [torch.from_numpy(r) for r in rest]
 
         xt, yt, mt, wt = tensors((x, y, m, w.astype(np.float32)))
-        checks = (
-            tensors(tuple(r.astype(np.float32) for r in training_rows(val, rng, s.object_inputs))) if n_val else None
-        )
+        val_rows = training_rows(val, rng, s.object_inputs, s.outlines) if n_val else None
+        checks = tensors(tuple(r.astype(np.float32) for r in val_rows)) if val_rows is not None else None
         net = StepNet(x.shape[1], s.hidden)
         opt = torch.optim.AdamW(net.parameters(), lr=s.lr, weight_decay=1e-4)
         sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=s.lr, total_steps=s.steps)
@@ -375,7 +416,7 @@ class WorldModel:
                     since += 1
                     if since >= s.patience:
                         break
-        model = cls(episodes.scene, arm, net, mean, std, s.object_inputs)
+        model = cls(episodes.scene, arm, net, mean, std, s.object_inputs, s.outlines)
         if best_state is not None:
             net.load_state_dict(best_state)
             model.trained_steps = best_step
@@ -449,6 +490,7 @@ class WorldModel:
                     balls[live, t + 1],
                     props[live],
                     self.object_inputs,
+                    self.outlines,
                 )
                 logit, motion = self.net(torch.from_numpy((x.reshape(-1, x.shape[-1]) - self.mean) / self.std))
                 motion = motion.numpy().reshape(len(live), k, 4) * (logit.numpy() > self.gate).reshape(len(live), k, 1)

@@ -37,7 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
-from babblegen.worldmodel.episodes import EpisodeSet, object_distance_moved
+from babblegen.worldmodel.episodes import PROPERTIES, EpisodeSet, object_distance_moved
 from babblegen.worldmodel.model import WorldModel, object_state
 
 CANDIDATE_ATTEMPTS = 1_000_000_000  # attempt indices of the executed baselines: far from any run's own
@@ -78,7 +78,7 @@ class PlanningSettings:
     def key(self, test: EpisodeSet) -> str:
         """What the executed goals and baselines depend on: the settings that choose them, and the test set."""
         parts = [self.planner == "rank", self.goals, self.candidates, self.min_move_cm, self.far_cm, self.sigma]
-        parts += [self.seed, self.object_share]
+        parts += [self.seed, self.object_share, len(PROPERTIES)]  # the goals' stored object vectors' length
         raw = json.dumps([parts, sorted(set(test.source.tolist())), test.identity.tolist()]).encode()
         return hashlib.blake2b(raw, digest_size=12).hexdigest()
 
