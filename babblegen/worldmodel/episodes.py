@@ -7,6 +7,7 @@ stratum.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import os
@@ -116,7 +117,13 @@ def outline(spec: ObjectSpec, step: float = 5e-4) -> np.ndarray:
 
 
 def object_vector(spec: ObjectSpec) -> np.ndarray:
-    """The object's geometry and material as `PROPERTIES` lists them."""
+    """The object's geometry and material as `PROPERTIES` lists them (a new array each call)."""
+    return _object_vector(spec).copy()
+
+
+@functools.lru_cache(maxsize=4096)
+def _object_vector(spec: ObjectSpec) -> np.ndarray:
+    """`object_vector`, worked out once per spec: a scene's vectors are asked for at every frame of a rollout."""
     out = np.zeros(len(PROPERTIES))
     out[PROPERTY[f"shape_{spec.shape}"]] = 1.0
     out[PROPERTY["footprint_radius"]] = spec.footprint_radius
