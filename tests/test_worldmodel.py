@@ -433,3 +433,57 @@ def test_a_model_tells_objects_apart_by_their_properties():
     # the same model, asked with the scene's objects instead (rollout's default), sees other objects
     first = [object_state(p[0]) for p in test.poses]
     assert model.rollout(first, test.actions, [s[0] for s in test.states]).shape == (2, 3, 4)
+
+
+def turn_about(v: np.ndarray, centre: np.ndarray, angle: float) -> np.ndarray:
+    """(..., >=2) points turned by ``angle`` about the vertical through ``centre`` (x, y); a fourth column, a yaw,
+    turns with them."""
+    c, s = np.cos(angle), np.sin(angle)
+    out = np.array(v, dtype=np.float64, copy=True)
+    dx, dy = v[..., 0] - centre[0], v[..., 1] - centre[1]
+    out[..., 0], out[..., 1] = centre[0] + c * dx - s * dy, centre[1] + s * dx + c * dy
+    if v.shape[-1] == 4:
+        out[..., 3] = v[..., 3] + angle
+    return out
+
+
+def test_the_push_frame_points_from_the_arm_to_the_object_and_turns_with_the_scene():
+    """A sphere passing 8 cm on the object's +x side pushes it along -x: its push frame points along -x (yaw pi).
+    Turning the whole scene (objects, their yaws, the arm) about an object's centre changes nothing it sees in that
+    frame but the table's edges, round or not, and its motion in that frame neither; in its own frame a round
+    object (read in the world's frame) sees the turn."""
+    from babblegen.worldmodel.model import push_frame
+
+    radii = np.array([0.03, 0.02])
+    now = object_state(np.array([REST]))
+    arm0 = now[:, :1, :3] + np.array([[[0.08, 0.0, 0.0], [0.3, 0.3, 0.3]]])
+    assert abs(push_frame(now, arm0, arm0, radii)[0, 0]) == pytest.approx(np.pi)
+    rng = np.random.default_rng(6)
+    before = now - rng.uniform(-0.003, 0.003, now.shape)
+    arm0 = now[:, 1:2, :3] + rng.uniform(-0.1, 0.1, (1, 2, 3))
+    arm1 = arm0 + rng.uniform(-0.02, 0.02, (1, 2, 3))
+    after = now + rng.normal(0, 0.01, now.shape)
+    after[..., 1:, 3] = now[..., 1:, 3]  # round objects keep no yaw
+    k = len(SCENE.objects)
+    edges = np.zeros(features(SCENE, radii, now, before, arm0, arm1)[0].shape[-1] + 2, dtype=bool)
+    edges[k + 5 : k + 9] = True  # after "which object" (k) and its own motion and height (5)
+    for slot in range(k):  # the cube, the can, the ball
+        centre = now[0, slot, :2]
+        angle = 0.7 + slot
+        turned = [turn_about(v, centre, angle) for v in (now, before, arm0, arm1, after)]
+        seen = []
+        for state, last, a0, a1, end in ((now, before, arm0, arm1, after), turned):
+            yaw = push_frame(state, a0, a1, radii)
+            x, gap = features(SCENE, radii, state, last, a0, a1, frame_yaw=yaw)
+            seen.append((x[0, slot, ~edges], targets(SCENE, state, end, frame_yaw=yaw)[0][0, slot], gap))
+            np.testing.assert_allclose(
+                apply(SCENE, state, targets(SCENE, state, end, frame_yaw=yaw)[0], None, yaw), end, atol=1e-6
+            )
+        np.testing.assert_allclose(seen[0][0], seen[1][0], atol=1e-4)
+        np.testing.assert_allclose(seen[0][1][:3], seen[1][1][:3], atol=1e-4)
+        np.testing.assert_allclose(seen[0][2], seen[1][2], atol=1e-9)
+    own = features(SCENE, radii, now, before, arm0, arm1)[0][0, 1]
+    turned_own = features(SCENE, radii, *(turn_about(v, now[0, 1, :2], 0.7) for v in (now, before, arm0, arm1)))[0][
+        0, 1
+    ]
+    assert np.abs(own - turned_own).max() > 0.1

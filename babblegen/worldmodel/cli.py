@@ -103,6 +103,13 @@ def register(sub) -> None:
         help="the model also reads each object's outline (16 rays from its origin) and how far each arm sphere passes "
         "outside it: for objects whose shape family no training object has",
     )
+    p.add_argument(
+        "--frame",
+        choices=("object", "push"),
+        default="object",
+        help="the frame each object's inputs and motion are in: object: its own yaw modulo its symmetry; push: "
+        "pointing from where the arm passes nearest to its centre, the same for every shape [default: object]",
+    )
     p.add_argument("--seed", type=int, default=0, help="repeat r trains with seed SEED + r [default: 0]")
     p.add_argument("--workers", type=int, default=None, help="processes [default: one per core]")
     p.add_argument("--out", type=Path, default=Path("evaluation"), help="output folder [default: evaluation]")
@@ -168,7 +175,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         if plan is None:
             print(f"planning: {plan_test} holds no goal (no episode moved an object 5 cm onto the table): skipped")
     steps = {} if args.steps is None else {"steps": args.steps}
-    train = TrainSettings(seed=args.seed, outlines=args.outlines, **steps)
+    train = TrainSettings(seed=args.seed, outlines=args.outlines, frame=args.frame, **steps)
     if train.steps < 1:
         raise EvaluationError(f"--steps must be at least 1, got {train.steps}")
     modes = ["attempts", "episodes"] if args.equal == "both" else [args.equal]

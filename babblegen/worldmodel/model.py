@@ -163,6 +163,39 @@ def scene_objects(scene: Scene, objects: np.ndarray | None, n: int) -> np.ndarra
     return np.broadcast_to(props, (n, *props.shape[-2:]))
 
 
+def object_frame(now: np.ndarray, sym: np.ndarray) -> np.ndarray:
+    """(N, K) each object's own frame: its yaw modulo its symmetry ``sym`` (N, K), the world's for round ones."""
+    return np.where(sym > 0, wrap(now[..., 3], sym), 0.0)
+
+
+def sweep(
+    now: np.ndarray, arm0: np.ndarray, arm1: np.ndarray, radii: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The arm's spheres relative to each object's centre over a frame: where they start and end (N, K, S, 3), the
+    fraction of the way at which each passes nearest (N, K, S), and how near its surface passes then (N, K, S)."""
+    rel0 = arm0[:, None] - now[:, :, None, :3]
+    rel1 = arm1[:, None] - now[:, :, None, :3]
+    seg = rel1 - rel0
+    along = np.clip(-(rel0 * seg).sum(-1) / np.maximum((seg * seg).sum(-1), 1e-12), 0.0, 1.0)
+    gap = np.linalg.norm(rel0 + along[..., None] * seg, axis=-1) - radii
+    return rel0, rel1, along, gap
+
+
+def push_frame(now: np.ndarray, arm0: np.ndarray, arm1: np.ndarray, radii: np.ndarray) -> np.ndarray:
+    """(N, K) each object's push frame for a frame: x points from where the arm passes nearest (the sphere whose
+    surface comes nearest) to the object's centre, seen from above; along the sphere's motion where it passes
+    right over the centre. One frame for every shape: what is learned of a push from one side holds for all."""
+    rel0, rel1, along, gap = sweep(now, arm0, arm1, radii)
+    first = np.argmin(gap, axis=-1)[..., None]  # (N, K, 1)
+    r0 = np.take_along_axis(rel0, first[..., None], axis=2)[:, :, 0]
+    r1 = np.take_along_axis(rel1, first[..., None], axis=2)[:, :, 0]
+    t = np.take_along_axis(along, first, axis=2)[..., 0, None]
+    away = -(r0 + t * (r1 - r0))[..., :2]  # (N, K, 2): from the arm to the centre
+    motion = (r1 - r0)[..., :2]
+    use = np.where((np.linalg.norm(away, axis=-1) > 1e-3)[..., None], away, motion)
+    return np.arctan2(use[..., 1], use[..., 0])
+
+
 def features(
     scene: Scene,
     radii: np.ndarray,
@@ -173,6 +206,7 @@ def features(
     objects: np.ndarray | None = None,
     properties: bool = True,
     outlines: bool = False,
+    frame_yaw: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Inputs of the step network for N scenes at one frame: ``now`` and ``before`` (N, K, 4) the objects' states
     in this frame and the one before, ``arm0`` and ``arm1`` (N, S, 3) the arm's spheres in this frame and the next,
@@ -180,11 +214,14 @@ def features(
     in its own frame (see the module docstring), and (N, K) how near the arm's surface passes the object's centre
     this frame, metres. ``properties=False`` gives zeros for the property inputs (the objects' geometry still sets
     their frames and resting heights). ``outlines``: each object also reads its outline and, per arm sphere, how far
-    the sphere passes outside it seen from above (the distance to the outline, less the sphere's radius)."""
+    the sphere passes outside it seen from above (the distance to the outline, less the sphere's radius).
+    ``frame_yaw`` (N, K): each object's frame (`push_frame`), its own turn in it an input too; None: its own yaw
+    modulo its symmetry (`object_frame`)."""
     n, k = now.shape[:2]
     objects = scene_objects(scene, objects, n)
     sym = objects[..., PROPERTY["yaw_symmetry"]]  # (N, K)
-    frame_yaw = np.where(sym > 0, wrap(now[..., 3], sym), 0.0)  # (N, K): each object's frame
+    pushed = frame_yaw is not None
+    frame_yaw = object_frame(now, sym) if frame_yaw is None else frame_yaw  # (N, K): each object's frame
     cos, sin = np.cos(frame_yaw), np.sin(frame_yaw)
 
     def to_frame(v: np.ndarray) -> np.ndarray:
@@ -194,11 +231,7 @@ def features(
         return np.stack([cc * v[..., 0] + ss * v[..., 1], cc * v[..., 1] - ss * v[..., 0]], axis=-1)
 
     # the arm: its spheres relative to the object's centre, the nearest first over the segment each sweeps
-    rel0 = arm0[:, None] - now[:, :, None, :3]  # (N, K, S, 3)
-    rel1 = arm1[:, None] - now[:, :, None, :3]
-    seg = rel1 - rel0
-    along = np.clip(-(rel0 * seg).sum(-1) / np.maximum((seg * seg).sum(-1), 1e-12), 0.0, 1.0)
-    gap = np.linalg.norm(rel0 + along[..., None] * seg, axis=-1) - radii
+    rel0, rel1, along, gap = sweep(now, arm0, arm1, radii)
     near = np.argsort(gap, axis=-1, kind="stable")[..., :NEAREST]  # (N, K, M)
     r0 = np.take_along_axis(rel0, near[..., None], axis=2)
     r1 = np.take_along_axis(rel1, near[..., None], axis=2)
@@ -223,6 +256,10 @@ def features(
         ],
         axis=-1,
     )
+    if pushed:  # the object's own turn in the push's frame, modulo its symmetry (none for round objects)
+        order = np.where(sym > 0, 2 * np.pi / np.where(sym > 0, sym, 1.0), 0.0)
+        turn = order * (now[..., 3] - frame_yaw)
+        own = np.concatenate([own, np.stack([np.cos(turn), np.sin(turn)], axis=-1) * (sym > 0)[..., None]], axis=-1)
     x0, x1, y0, y1 = scene.table
     edges = np.stack([now[..., 0] - x0, x1 - now[..., 0], now[..., 1] - y0, y1 - now[..., 1]], axis=-1) * POS
     props = property_inputs(objects) if properties else np.zeros(objects.shape)
@@ -241,12 +278,17 @@ def features(
 
 
 def targets(
-    scene: Scene, now: np.ndarray, after: np.ndarray, objects: np.ndarray | None = None
+    scene: Scene,
+    now: np.ndarray,
+    after: np.ndarray,
+    objects: np.ndarray | None = None,
+    frame_yaw: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """What the step network learns for (N, K, 4) states in a frame and the next: the motion in the object's frame
-    (dx, dy in cm, dyaw in rad / 10, dz in cm), and whether it moves at all. ``objects``: as `features`'."""
+    (dx, dy in cm, dyaw in rad / 10, dz in cm), and whether it moves at all. ``objects``, ``frame_yaw``: as
+    `features`'."""
     sym = scene_objects(scene, objects, len(now))[..., PROPERTY["yaw_symmetry"]]
-    frame_yaw = np.where(sym > 0, wrap(now[..., 3], sym), 0.0)
+    frame_yaw = object_frame(now, sym) if frame_yaw is None else frame_yaw
     cos, sin = np.cos(frame_yaw), np.sin(frame_yaw)
     d = after - now
     dyaw = np.where(sym > 0, wrap(d[..., 3], np.where(sym > 0, sym, 2 * np.pi)), 0.0)
@@ -263,11 +305,17 @@ def targets(
     return out.astype(np.float32), moving
 
 
-def apply(scene: Scene, now: np.ndarray, motion: np.ndarray, objects: np.ndarray | None = None) -> np.ndarray:
-    """(N, K, 4) states after the step network's (N, K, 4) motions (in each object's frame). ``objects``: as
-    `features`'."""
+def apply(
+    scene: Scene,
+    now: np.ndarray,
+    motion: np.ndarray,
+    objects: np.ndarray | None = None,
+    frame_yaw: np.ndarray | None = None,
+) -> np.ndarray:
+    """(N, K, 4) states after the step network's (N, K, 4) motions (in each object's frame). ``objects``,
+    ``frame_yaw``: as `features`'."""
     sym = scene_objects(scene, objects, len(now))[..., PROPERTY["yaw_symmetry"]]
-    frame_yaw = np.where(sym > 0, wrap(now[..., 3], sym), 0.0)
+    frame_yaw = object_frame(now, sym) if frame_yaw is None else frame_yaw
     cos, sin = np.cos(frame_yaw), np.sin(frame_yaw)
     dx, dy = motion[..., 0] / VEL, motion[..., 1] / VEL
     out = now.copy()
@@ -309,13 +357,18 @@ class TrainSettings:
     seed: int = 0
     object_inputs: bool = True  # False: the objects' properties are no input (zeros), an ablation
     outlines: bool = False  # True: the objects' outlines are inputs too, and the arm's distance to them (`features`)
+    frame: str = "object"  # each object's frame: "object" (`object_frame`) or "push" (`push_frame`)
 
 
 def training_rows(
-    episodes: EpisodeSet, rng: np.random.Generator, properties: bool = True, outlines: bool = False
+    episodes: EpisodeSet,
+    rng: np.random.Generator,
+    properties: bool = True,
+    outlines: bool = False,
+    frame: str = "object",
 ) -> tuple[np.ndarray, ...]:
     """The step network's rows (inputs, targets, moving, weight) of every frame of every episode, with the true arm
-    and object states; ``properties`` and ``outlines``: as `features`'."""
+    and object states; ``properties`` and ``outlines``: as `features`', ``frame``: as `TrainSettings`'."""
     scene = episodes.scene
     spheres = ArmSpheres(scene.robot)
     xs, ys, ms, ws = [], [], [], []
@@ -323,10 +376,11 @@ def training_rows(
         state = object_state(poses)
         before = np.concatenate([state[:1], state[:-2]])
         balls = spheres(q)
+        yaw = push_frame(state[:-1], balls[:-1], balls[1:], spheres.radii) if frame == "push" else None
         x, gap = features(
-            scene, spheres.radii, state[:-1], before, balls[:-1], balls[1:], objects, properties, outlines
+            scene, spheres.radii, state[:-1], before, balls[:-1], balls[1:], objects, properties, outlines, yaw
         )
-        y, m = targets(scene, state[:-1], state[1:], objects)
+        y, m = targets(scene, state[:-1], state[1:], objects, yaw)
         _, was = targets(scene, before, state[:-1], objects)
         # quiet rows (nothing near or moving, before or now) teach little but "stays": keep one in QUIET
         busy = (gap < BUSY_GAP) | m | was | (m | was).any(axis=1, keepdims=True)
@@ -360,10 +414,12 @@ class WorldModel:
         std: np.ndarray,
         object_inputs: bool = True,
         outlines: bool = False,
+        frame: str = "object",
     ):
         self.scene, self.arm, self.net, self.mean, self.std = scene, arm, net, mean, std
         self.object_inputs = object_inputs  # False: the objects' properties are no input (`TrainSettings`)
         self.outlines = outlines  # True: the objects' outlines are inputs too (`TrainSettings`)
+        self.frame = frame  # "object" or "push" (`TrainSettings`)
         self.spheres = ArmSpheres(scene.robot)
         self.trained_steps = 0
         self.gate = 0.0  # a frame's motion is applied where the "moves" logit exceeds this
@@ -377,7 +433,7 @@ class WorldModel:
         n_val = int(len(episodes) * s.validation) if len(episodes) >= 10 else 0
         train, val = episodes.take(np.sort(order[n_val:])), episodes.take(np.sort(order[:n_val]))
         arm = ArmFilter.fit(train.actions, train.states)
-        x, y, m, w = training_rows(train, rng, s.object_inputs, s.outlines)
+        x, y, m, w = training_rows(train, rng, s.object_inputs, s.outlines, s.frame)
         # an input that never varies in training (a shape no training object has) teaches nothing: read as 0
         mean, std = x.mean(axis=0), x.std(axis=0)
         std = np.where(std < 1e-6, np.inf, std + 1e-3).astype(np.float32)
@@ -387,7 +443,7 @@ class WorldModel:
             return [torch.from_numpy(((xr - mean) / std).astype(np.float32))] + [torch.from_numpy(r) for r in rest]
 
         xt, yt, mt, wt = tensors((x, y, m, w.astype(np.float32)))
-        val_rows = training_rows(val, rng, s.object_inputs, s.outlines) if n_val else None
+        val_rows = training_rows(val, rng, s.object_inputs, s.outlines, s.frame) if n_val else None
         checks = tensors(tuple(r.astype(np.float32) for r in val_rows)) if val_rows is not None else None
         net = StepNet(x.shape[1], s.hidden)
         opt = torch.optim.AdamW(net.parameters(), lr=s.lr, weight_decay=1e-4)
@@ -416,7 +472,7 @@ class WorldModel:
                     since += 1
                     if since >= s.patience:
                         break
-        model = cls(episodes.scene, arm, net, mean, std, s.object_inputs, s.outlines)
+        model = cls(episodes.scene, arm, net, mean, std, s.object_inputs, s.outlines, s.frame)
         if best_state is not None:
             net.load_state_dict(best_state)
             model.trained_steps = best_step
@@ -481,21 +537,24 @@ class WorldModel:
                 live = np.flatnonzero(lengths - 1 > t)
                 if not len(live):
                     break
+                arm0, arm1 = balls[live, t], balls[live, t + 1]
+                yaw = push_frame(now[live], arm0, arm1, self.spheres.radii) if self.frame == "push" else None
                 x, _ = features(
                     self.scene,
                     self.spheres.radii,
                     now[live],
                     before[live],
-                    balls[live, t],
-                    balls[live, t + 1],
+                    arm0,
+                    arm1,
                     props[live],
                     self.object_inputs,
                     self.outlines,
+                    yaw,
                 )
                 logit, motion = self.net(torch.from_numpy((x.reshape(-1, x.shape[-1]) - self.mean) / self.std))
                 motion = motion.numpy().reshape(len(live), k, 4) * (logit.numpy() > self.gate).reshape(len(live), k, 1)
                 before[live] = now[live]
-                now[live] = apply(self.scene, now[live], motion, props[live])
+                now[live] = apply(self.scene, now[live], motion, props[live], yaw)
                 ended = live[lengths[live] - 2 == t]
                 final[ended] = now[ended]
         final[lengths == 1] = now[lengths == 1]
