@@ -487,3 +487,30 @@ def test_the_push_frame_points_from_the_arm_to_the_object_and_turns_with_the_sce
         0, 1
     ]
     assert np.abs(own - turned_own).max() > 0.1
+
+
+def test_a_bounded_model_answers_beyond_its_data_as_at_its_edge():
+    """Trained on cubes of 0.05 to 0.1 kg (they slide) and 0.4 to 0.8 kg (they stay), a model whose rollouts clamp
+    their inputs to the training range predicts for a 50 kg cube exactly what it predicts for the heaviest it saw,
+    and for a 5 g cube what it predicts for the lightest: the 5 g cube slides its 5 cm, the 50 kg one stays."""
+    import torch
+
+    from babblegen.worldmodel.model import TrainSettings, WorldModel
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    rng = np.random.default_rng(4)
+    masses = np.where(rng.random(40) < 0.5, rng.uniform(0.05, 0.1, 40), rng.uniform(0.4, 0.8, 40))
+    masses[:2] = 0.05, 0.8  # the training range's edges, exactly
+    train = sliding(masses.tolist(), rng)
+    probes = (0.005, 0.05, 0.8, 50.0)
+    test = EpisodeSet.union([sliding([m], np.random.default_rng(5)) for m in probes])
+    slot = int(np.flatnonzero(test.objects[0, :, PROPERTY["mass"]] == 0.005)[0])
+    try:
+        settings = TrainSettings(steps=400, check=100, patience=3, hidden=64, batch=256, bounded=True)
+        model = WorldModel.fit(train, settings)
+        moved = model.predict(test)[:, slot, 0] - test.first[:, slot, 0]
+    finally:
+        torch.set_num_threads(threads)
+    assert moved[0] == moved[1] and moved[2] == moved[3]
+    assert moved[0] == pytest.approx(0.05, abs=0.01) and abs(moved[3]) < 0.005

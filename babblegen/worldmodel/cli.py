@@ -110,6 +110,12 @@ def register(sub) -> None:
         help="the frame each object's inputs and motion are in: object: its own yaw modulo its symmetry; push: "
         "pointing from where the arm passes nearest to its centre, the same for every shape [default: object]",
     )
+    p.add_argument(
+        "--bounded-inputs",
+        action="store_true",
+        help="rollouts clamp every input of the model to the range its training data spans: what it says of an "
+        "object or a place beyond its data is what it says at the data's edge, not an extrapolation",
+    )
     p.add_argument("--seed", type=int, default=0, help="repeat r trains with seed SEED + r [default: 0]")
     p.add_argument("--workers", type=int, default=None, help="processes [default: one per core]")
     p.add_argument("--out", type=Path, default=Path("evaluation"), help="output folder [default: evaluation]")
@@ -175,7 +181,9 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         if plan is None:
             print(f"planning: {plan_test} holds no goal (no episode moved an object 5 cm onto the table): skipped")
     steps = {} if args.steps is None else {"steps": args.steps}
-    train = TrainSettings(seed=args.seed, outlines=args.outlines, frame=args.frame, **steps)
+    train = TrainSettings(
+        seed=args.seed, outlines=args.outlines, frame=args.frame, bounded=args.bounded_inputs, **steps
+    )
     if train.steps < 1:
         raise EvaluationError(f"--steps must be at least 1, got {train.steps}")
     modes = ["attempts", "episodes"] if args.equal == "both" else [args.equal]

@@ -358,6 +358,7 @@ class TrainSettings:
     object_inputs: bool = True  # False: the objects' properties are no input (zeros), an ablation
     outlines: bool = False  # True: the objects' outlines are inputs too, and the arm's distance to them (`features`)
     frame: str = "object"  # each object's frame: "object" (`object_frame`) or "push" (`push_frame`)
+    bounded: bool = False  # True: rollouts clamp every input to the range the training rows span
 
 
 def training_rows(
@@ -415,8 +416,10 @@ class WorldModel:
         object_inputs: bool = True,
         outlines: bool = False,
         frame: str = "object",
+        bounds: tuple[np.ndarray, np.ndarray] | None = None,
     ):
         self.scene, self.arm, self.net, self.mean, self.std = scene, arm, net, mean, std
+        self.bounds = bounds  # normalised inputs' (low, high) over the training rows: rollouts clamp to them
         self.object_inputs = object_inputs  # False: the objects' properties are no input (`TrainSettings`)
         self.outlines = outlines  # True: the objects' outlines are inputs too (`TrainSettings`)
         self.frame = frame  # "object" or "push" (`TrainSettings`)
@@ -472,7 +475,8 @@ class WorldModel:
                     since += 1
                     if since >= s.patience:
                         break
-        model = cls(episodes.scene, arm, net, mean, std, s.object_inputs, s.outlines, s.frame)
+        bounds = (xt.min(dim=0).values.numpy(), xt.max(dim=0).values.numpy()) if s.bounded else None
+        model = cls(episodes.scene, arm, net, mean, std, s.object_inputs, s.outlines, s.frame, bounds)
         if best_state is not None:
             net.load_state_dict(best_state)
             model.trained_steps = best_step
@@ -551,7 +555,10 @@ class WorldModel:
                     self.outlines,
                     yaw,
                 )
-                logit, motion = self.net(torch.from_numpy((x.reshape(-1, x.shape[-1]) - self.mean) / self.std))
+                z = (x.reshape(-1, x.shape[-1]) - self.mean) / self.std
+                if self.bounds is not None:
+                    z = np.clip(z, *self.bounds)
+                logit, motion = self.net(torch.from_numpy(z))
                 motion = motion.numpy().reshape(len(live), k, 4) * (logit.numpy() > self.gate).reshape(len(live), k, 1)
                 before[live] = now[live]
                 now[live] = apply(self.scene, now[live], motion, props[live], yaw)
