@@ -106,9 +106,10 @@ def register(sub) -> None:
     p.add_argument(
         "--frame",
         choices=("object", "push"),
-        default="object",
-        help="the frame each object's inputs and motion are in: object: its own yaw modulo its symmetry; push: "
-        "pointing from where the arm passes nearest to its centre, the same for every shape [default: object]",
+        default="push",
+        help="the frame each object's inputs and motion are in: push: pointing from where the arm passes nearest to "
+        "its centre, the same for every shape; object: its own yaw modulo its symmetry (the model before the push "
+        "frame) [default: push]",
     )
     p.add_argument(
         "--bounded-inputs",

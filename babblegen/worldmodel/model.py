@@ -357,7 +357,7 @@ class TrainSettings:
     seed: int = 0
     object_inputs: bool = True  # False: the objects' properties are no input (zeros), an ablation
     outlines: bool = False  # True: the objects' outlines are inputs too, and the arm's distance to them (`features`)
-    frame: str = "object"  # each object's frame: "object" (`object_frame`) or "push" (`push_frame`)
+    frame: str = "push"  # each object's frame: "object" (`object_frame`) or "push" (`push_frame`)
     bounded: bool = False  # True: rollouts clamp every input to the range the training rows span
 
 
@@ -366,7 +366,7 @@ def training_rows(
     rng: np.random.Generator,
     properties: bool = True,
     outlines: bool = False,
-    frame: str = "object",
+    frame: str = "push",
 ) -> tuple[np.ndarray, ...]:
     """The step network's rows (inputs, targets, moving, weight) of every frame of every episode, with the true arm
     and object states; ``properties`` and ``outlines``: as `features`', ``frame``: as `TrainSettings`'."""
@@ -415,7 +415,7 @@ class WorldModel:
         std: np.ndarray,
         object_inputs: bool = True,
         outlines: bool = False,
-        frame: str = "object",
+        frame: str = "push",
         bounds: tuple[np.ndarray, np.ndarray] | None = None,
     ):
         self.scene, self.arm, self.net, self.mean, self.std = scene, arm, net, mean, std
