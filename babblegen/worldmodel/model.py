@@ -277,6 +277,15 @@ def features(
     return np.concatenate([which, own, edges, props, pair, arm], axis=-1).astype(np.float32), nearest
 
 
+def frame_of(
+    scene: Scene, now: np.ndarray, objects: np.ndarray | None, frame_yaw: np.ndarray | None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(N, K) each object's yaw symmetry, and the cosine and sine of its frame (``frame_yaw``; None: its own)."""
+    sym = scene_objects(scene, objects, len(now))[..., PROPERTY["yaw_symmetry"]]
+    frame_yaw = object_frame(now, sym) if frame_yaw is None else frame_yaw
+    return sym, np.cos(frame_yaw), np.sin(frame_yaw)
+
+
 def targets(
     scene: Scene,
     now: np.ndarray,
@@ -287,9 +296,7 @@ def targets(
     """What the step network learns for (N, K, 4) states in a frame and the next: the motion in the object's frame
     (dx, dy in cm, dyaw in rad / 10, dz in cm), and whether it moves at all. ``objects``, ``frame_yaw``: as
     `features`'."""
-    sym = scene_objects(scene, objects, len(now))[..., PROPERTY["yaw_symmetry"]]
-    frame_yaw = object_frame(now, sym) if frame_yaw is None else frame_yaw
-    cos, sin = np.cos(frame_yaw), np.sin(frame_yaw)
+    sym, cos, sin = frame_of(scene, now, objects, frame_yaw)
     d = after - now
     dyaw = np.where(sym > 0, wrap(d[..., 3], np.where(sym > 0, sym, 2 * np.pi)), 0.0)
     out = np.stack(
@@ -314,9 +321,7 @@ def apply(
 ) -> np.ndarray:
     """(N, K, 4) states after the step network's (N, K, 4) motions (in each object's frame). ``objects``,
     ``frame_yaw``: as `features`'."""
-    sym = scene_objects(scene, objects, len(now))[..., PROPERTY["yaw_symmetry"]]
-    frame_yaw = object_frame(now, sym) if frame_yaw is None else frame_yaw
-    cos, sin = np.cos(frame_yaw), np.sin(frame_yaw)
+    _, cos, sin = frame_of(scene, now, objects, frame_yaw)
     dx, dy = motion[..., 0] / VEL, motion[..., 1] / VEL
     out = now.copy()
     out[..., 0] += cos * dx - sin * dy
