@@ -8,7 +8,8 @@ Two learned parts, both fitted on the training episodes alone:
   step and the target before (least squares over every training frame). The joint controller lags its targets by
   about two frames; the filter predicts the arm's joints from the commands alone to about a millimetre at the tool.
 - `StepModel`, the objects' response to the arm and to each other, one frame at a time, one network shared by
-  every object (`features`): in the object's own frame (its position; its yaw modulo its symmetry), the arm's
+  every object (`features`): in the object's push frame (`push_frame`: from where the arm passes nearest to its
+  centre; `object_frame`, its own yaw modulo its symmetry, is the model before it, `TrainSettings.frame`), the arm's
   nearest collision spheres where they start and end the frame, its own last motion, height and the table's
   edges, its own properties (shape, size, mass, friction...: `property_inputs`), and the other objects' places,
   last motions, sizes and masses. It predicts whether the object moves this frame and, if so, by how much (x, y,
