@@ -1,10 +1,10 @@
-"""`babblegen` command line: generate a dataset (and, where installed, report on it or view it)."""
+"""`babblegen` command line: generate a dataset, and verify, report on, view or evaluate one."""
 
 from __future__ import annotations
 
 import argparse
-import contextlib
 import dataclasses
+import importlib
 import sys
 from pathlib import Path
 
@@ -20,6 +20,14 @@ from babblegen.world.settings import (
 )
 
 _N, _W = NovEBConfig(), WorldSettings()
+
+# The subcommands other modules register, and their names: a command whose module does not import is still on the
+# command line, and running it says what is missing.
+SUBCOMMANDS: dict[str, tuple[str, ...]] = {
+    "babblegen.report_cli": ("view", "report"),
+    "babblegen.verify": ("verify",),
+    "babblegen.worldmodel.cli": ("evaluate",),
+}
 
 
 def _positive(name: str):
@@ -263,10 +271,30 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--no-progress", action="store_true", help="no progress bar")
     g.set_defaults(func=cmd_generate)
 
-    for module in ("babblegen.report_cli", "babblegen.verify", "babblegen.worldmodel.cli"):
-        with contextlib.suppress(ImportError):
-            __import__(module, fromlist=["register"]).register(sub)
+    for module, commands in SUBCOMMANDS.items():
+        _register(sub, module, commands)
     return parser
+
+
+def _register(sub, module: str, commands: tuple[str, ...]) -> None:
+    """Let ``module`` add its subcommands; when it does not import, add each as one that only says so."""
+    try:
+        register = importlib.import_module(module).register
+    except ImportError as e:
+        reason = f"cannot import {module} ({e})"
+        for name in commands:
+            p = sub.add_parser(name, help=f"unavailable: {reason}", add_help=False)
+            p.set_defaults(func=_unavailable(name, reason), unavailable=True)
+        return
+    register(sub)
+
+
+def _unavailable(name: str, reason: str):
+    def run(args: argparse.Namespace) -> int:
+        print(f"babblegen: error: {name}: {reason}", file=sys.stderr)
+        return 2
+
+    return run
 
 
 def _overrides(args: argparse.Namespace) -> dict:
@@ -384,7 +412,9 @@ def cmd_generate(args: argparse.Namespace) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args, unknown = parser.parse_known_args(argv)
+    if unknown and not getattr(args, "unavailable", False):  # an unavailable command takes any arguments
+        parser.error(f"unrecognized arguments: {' '.join(unknown)}")
     try:
         return args.func(args)
     except ConfigError as e:
