@@ -16,7 +16,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from babblegen.scene import ObjectSpec, PlacementRegion, StartDistribution, TaskSpec
+from babblegen.scene import PlacementRegion, StartDistribution, TaskSpec
+from babblegen.shapes import ObjectSpec
 
 OBJECT_SETS = ("paper", "varied", "heldout")
 VARIED_SHAPES = ("box", "cylinder", "sphere", "capsule", "dumbbell", "hull")

@@ -28,7 +28,7 @@ from babblegen.exporters.sidecar import attempt_row, clone_row, read_attempts, r
 from babblegen.interrupts import Interrupted, Interrupts, StartupInterrupts
 from babblegen.outputs import RunOutputs
 from babblegen.provenance import machine, versions
-from babblegen.scene import ObjectSpec
+from babblegen.shapes import ObjectSpec
 from babblegen.store import RUN_INFO, AttemptRecord, RunStore, atomic_write, read_run_info, sidecar_dir
 from babblegen.world.rollout import Command
 

@@ -15,7 +15,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from babblegen.objects import ObjectSampler, slot_task
-from babblegen.scene import ObjectSpec, TaskSpec
+from babblegen.scene import TaskSpec
+from babblegen.shapes import ObjectSpec
 from babblegen.world.settings import START_MODES, WorldSettings
 
 __all__ = [

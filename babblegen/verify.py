@@ -19,7 +19,7 @@ import numpy as np
 from babblegen.config import ConfigError, RunConfig
 from babblegen.exporters.sidecar import ATTEMPTS, read_attempts, read_run_info, sidecar_dir
 from babblegen.provenance import differences_from_here
-from babblegen.scene import ObjectSpec
+from babblegen.shapes import ObjectSpec
 from babblegen.world.rollout import Command
 
 # dataset column -> the recorded frames' field it must equal

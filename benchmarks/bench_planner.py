@@ -23,6 +23,7 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=3000, help="training steps (the speed hardly depends on it)")
     parser.add_argument("--samples", type=int, default=64)
     parser.add_argument("--iterations", type=int, default=4)
+    parser.add_argument("--model", choices=("graph", "mlp"), default="graph")
     args = parser.parse_args()
     for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ.setdefault(var, "1")
@@ -30,14 +31,17 @@ def main() -> None:
 
     torch.set_num_threads(1)
     from babblegen.worldmodel import planning_cem
+    from babblegen.worldmodel.baseline import TrainSettings
     from babblegen.worldmodel.episodes import read_dataset
-    from babblegen.worldmodel.model import TrainSettings, WorldModel, object_state
+    from babblegen.worldmodel.experiment import fit_model
     from babblegen.worldmodel.planning import PlanningSettings, choose_goals, commander
+    from babblegen.worldmodel.simulator import GraphSettings
 
     train = read_dataset(args.train).episodes
     test = read_dataset(args.test).episodes
     t0 = time.perf_counter()
-    model = WorldModel.fit(train, TrainSettings(steps=args.steps))
+    settings = GraphSettings(steps=args.steps) if args.model == "graph" else TrainSettings(steps=args.steps)
+    model = fit_model(train, settings)
     print(f"model: {len(train)} episodes, {model.trained_steps} steps, {time.perf_counter() - t0:.0f} s")
     goals = choose_goals(test, PlanningSettings(goals=args.goals))
     episodes = [e for e, _ in goals]
@@ -64,7 +68,7 @@ def main() -> None:
     result = planning_cem.cem_plan(
         model,
         arm,
-        object_state(test.first[episodes]),
+        test.first[episodes],
         np.stack([test.states[e][0] for e in episodes]),
         np.array([k for _, k in goals]),
         np.stack([test.final[e, k, :2] for e, k in goals]),

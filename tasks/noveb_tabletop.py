@@ -4,8 +4,8 @@ another object). Objects are light enough to move on contact."""
 
 from __future__ import annotations
 
-from babblegen.scene import CameraSpec, ObjectSpec, PlacementRegion, StartDistribution, TaskSpec, WorkspaceBox
-from babblegen.world.collision import Box
+from babblegen.scene import CameraSpec, PlacementRegion, StartDistribution, TaskSpec, WorkspaceBox
+from babblegen.shapes import Box, ObjectSpec
 
 from .registry import register_task
 

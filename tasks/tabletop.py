@@ -17,8 +17,8 @@ from mani_skill.utils.building.actor_builder import ActorBuilder
 from mani_skill.utils.structs import Pose
 from mani_skill.utils.structs.types import SceneConfig, SimConfig
 
-from babblegen.scene import ObjectSpec, Part, TaskSpec
-from babblegen.world.collision import Box
+from babblegen.scene import TaskSpec
+from babblegen.shapes import Box, ObjectSpec, Part
 
 # A URDF/SAPIEN cylinder's axis is x; this turns it upright.
 _UPRIGHT = [np.sqrt(0.5), 0.0, -np.sqrt(0.5), 0.0]

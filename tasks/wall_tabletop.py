@@ -9,8 +9,8 @@ reached only by coming down behind the wall or sweeping in from its open end.
 
 from __future__ import annotations
 
-from babblegen.scene import CameraSpec, ObjectSpec, PlacementRegion, StartDistribution, TaskSpec
-from babblegen.world.collision import Box
+from babblegen.scene import CameraSpec, PlacementRegion, StartDistribution, TaskSpec
+from babblegen.shapes import Box, ObjectSpec
 
 from .noveb_tabletop import SPEC as PAPER_SCENE
 from .registry import register_task

@@ -12,7 +12,7 @@ import pytest
 
 from babblegen.cli import main
 
-FAST = ["--steps", "30", "--workers", "1"]
+FAST = ["--steps", "30", "--members", "2", "--workers", "1"]
 
 
 @pytest.fixture(scope="module")
@@ -111,16 +111,24 @@ def test_planning_records_the_planner_goals_and_intervals(small_noveb_dataset, s
     planner and the goals, every source's result its success and 95 % interval, beside the baselines."""
     from babblegen.worldmodel.episodes import read_dataset
     from babblegen.worldmodel.experiment import Source, run_experiment
-    from babblegen.worldmodel.model import TrainSettings
     from babblegen.worldmodel.planning import PlanningSettings, build_task
     from babblegen.worldmodel.report import write
+    from babblegen.worldmodel.simulator import GraphSettings
 
     test = {"held": read_dataset(small_heldout_dataset).episodes}
     settings = PlanningSettings(goals=2, candidates=2, min_move_cm=0.0, cem_samples=6, cem_iterations=2, cem_elites=2)
     task = build_task(test["held"], settings, workers=1, cache=None, echo=lambda _: None)
     sources = [Source("noveb", [read_dataset(small_noveb_dataset)])]
     result = run_experiment(
-        sources, test, [None], ["attempts"], TrainSettings(steps=30), task, settings, 1, echo=lambda _: None
+        sources,
+        test,
+        [None],
+        ["attempts"],
+        GraphSettings(steps=30, members=2),
+        task,
+        settings,
+        1,
+        echo=lambda _: None,
     )
     result["settings"] = {"planning": {"success_cm": 3.0}}
     write(result, tmp_path)
@@ -189,7 +197,7 @@ def test_varied_objects_are_read_per_episode_and_planned_with(varied_objects_dat
     """Each episode's objects come from its sidecar row; planning executes the goal episode's genome from its start
     with its objects and ends exactly where the recorded episode ended, every object."""
     from babblegen.exporters.sidecar import read_attempts
-    from babblegen.scene import ObjectSpec
+    from babblegen.shapes import ObjectSpec
     from babblegen.worldmodel.episodes import object_vector, read_dataset
     from babblegen.worldmodel.planning import PlanningSettings, build_task
 
@@ -208,8 +216,8 @@ def test_varied_objects_are_read_per_episode_and_planned_with(varied_objects_dat
              task.goal_xy, strict=True)]  # fmt: skip
     np.testing.assert_array_equal(task.objects, test.objects[goals])
     # every object ends exactly where it was recorded, height and yaw too; the slots' stand-ins would not
-    from babblegen.worldmodel.model import object_state
     from babblegen.worldmodel.planning import _rollout
+    from babblegen.worldmodel.poses import object_state
 
     c = test.commands[0]
     job = [str(test.source[0]), int(test.attempt[0]), c["kind"], c["genome"], c["layout"], c["objects"]]
@@ -229,4 +237,4 @@ def test_evaluate_trains_on_varied_objects_and_tests_on_the_paper_s(varied_objec
     scores = run["scores"]["paper"]["all"]
     assert scores["episodes"] == result["tests"]["paper"]["episodes"] > 0
     assert 0.0 <= scores["false_moves"] <= 1.0
-    assert result["settings"]["model"]["object_inputs"] is True
+    assert result["settings"]["model"]["kind"] == "graph"

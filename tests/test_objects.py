@@ -16,7 +16,7 @@ from babblegen.objects import (
     ObjectSampler,
     slot_task,
 )
-from babblegen.scene import ObjectSpec
+from babblegen.shapes import ObjectSpec
 from babblegen.starts import Start, StartSampler
 from babblegen.tasks import get_task
 

@@ -86,7 +86,7 @@ def test_canonical_rollouts_record_the_reference_values_to_the_bit(world):
 def test_rollouts_with_drawn_objects_record_the_reference_values_to_the_bit(drawn_world):
     """Drawn objects, replayed from the stored spec: the objects of several shapes touched, pushed into each other."""
     from babblegen.objects import ObjectSampler
-    from babblegen.scene import ObjectSpec
+    from babblegen.shapes import ObjectSpec
 
     assert DRAWN, "the reference holds rollouts with drawn objects"
     for spec in DRAWN:  # the stored spec is what the run drew

@@ -3,27 +3,24 @@ the outcome strata and the scores, each against numbers worked out by hand."""
 
 from __future__ import annotations
 
-from dataclasses import replace
-
 import numpy as np
 import pytest
 
-from babblegen.scene import ObjectSpec
+from babblegen.shapes import ObjectSpec
+from babblegen.worldmodel.arm import ArmFilter
+from babblegen.worldmodel.baseline import apply, features, push_frame, targets
 from babblegen.worldmodel.episodes import (
-    OUTLINE_RAYS,
     PROPERTIES,
     PROPERTY,
     STRATA,
-    SUMMARY,
     EpisodeSet,
     Scene,
     episode_objects,
     object_vector,
     outcomes,
-    outline,
 )
 from babblegen.worldmodel.metrics import mean_displacement, score
-from babblegen.worldmodel.model import ArmFilter, apply, features, object_state, targets
+from babblegen.worldmodel.poses import object_state
 
 GRAY = (0.5, 0.5, 0.5, 1.0)
 CUBE = ObjectSpec("box", "box", (0.05, 0.05, 0.05), GRAY, 0.2, (0.8, 0.2))
@@ -84,9 +81,10 @@ def test_targets_and_apply_undo_each_other():
     now = object_state(np.array([REST]))
     after = now + rng.normal(0, 0.02, now.shape)
     after[..., 1:, 3] = now[..., 1:, 3]  # round objects keep no yaw
-    motion, moving = targets(SCENE, now, after)
+    frame = rng.uniform(-np.pi, np.pi, now.shape[:2])
+    motion, moving = targets(SCENE, now, after, None, frame)
     assert moving.all()
-    np.testing.assert_allclose(apply(SCENE, now, motion), after, atol=1e-6)
+    np.testing.assert_allclose(apply(now, motion, frame), after, atol=1e-6)
 
 
 def test_features_see_the_scene_from_each_object():
@@ -97,11 +95,12 @@ def test_features_see_the_scene_from_each_object():
     before = now - 0.003
     arm0, arm1 = rng.uniform(0.5, 1.0, (1, 6, 3)), rng.uniform(0.5, 1.0, (1, 6, 3))
     radii = np.full(6, 0.03)
-    x, gap = features(SCENE, radii, now, before, arm0, arm1)
+    yaw = push_frame(now, arm0, arm1, radii)
+    x, gap = features(SCENE, radii, now, before, arm0, arm1, None, yaw)
     shift = np.array([0.05, -0.03, 0.0, 0.0])
-    x2, gap2 = features(SCENE, radii, now + shift, before + shift, arm0 + shift[:3], arm1 + shift[:3])
+    x2, gap2 = features(SCENE, radii, now + shift, before + shift, arm0 + shift[:3], arm1 + shift[:3], None, yaw)
     k = len(SCENE.objects)
-    edges = slice(k + 5, k + 9)  # after "which object" (k) and its own motion and height (5)
+    edges = slice(k + 7, k + 11)  # after "which object" (k), its own motion, height and turn (7)
     keep = np.ones(x.shape[-1], dtype=bool)
     keep[edges] = False
     np.testing.assert_allclose(x[..., keep], x2[..., keep], atol=1e-4)
@@ -110,7 +109,7 @@ def test_features_see_the_scene_from_each_object():
     turned[:, 0, 3] += np.pi / 2
     before_turned = before.copy()
     before_turned[:, 0, 3] += np.pi / 2
-    x3, _ = features(SCENE, radii, turned, before_turned, arm0, arm1)
+    x3, _ = features(SCENE, radii, turned, before_turned, arm0, arm1, None, yaw)
     np.testing.assert_allclose(x3, x, atol=1e-4)
 
 
@@ -307,18 +306,15 @@ def test_each_episode_s_objects_set_its_frames_heights_and_strata():
     rng = np.random.default_rng(3)
     arm0, arm1 = rng.uniform(0.5, 1.0, (1, 6, 3)).repeat(2, 0), rng.uniform(0.5, 1.0, (1, 6, 3)).repeat(2, 0)
     radii = np.full(6, 0.03)
-    x, _ = features(SCENE, radii, now, before, arm0, arm1, props)
+    yaw = push_frame(now, arm0, arm1, radii)
+    x, _ = features(SCENE, radii, now, before, arm0, arm1, props, yaw)
     turned, before_turned = now.copy(), before.copy()
     turned[:, 0, 3] += np.pi / 2
     before_turned[:, 0, 3] += np.pi / 2
-    x2, _ = features(SCENE, radii, turned, before_turned, arm0, arm1, props)
+    x2, _ = features(SCENE, radii, turned, before_turned, arm0, arm1, props, yaw)
     np.testing.assert_allclose(x2[0], x[0], atol=1e-4)  # the cube: the same
     assert np.abs(x2[1, 0] - x[1, 0]).max() > 0.1  # the flat box: not
     assert np.abs(x[1, 0] - x[0, 0]).max() > 0.1
-    zeroed, _ = features(SCENE, radii, now, before, arm0, arm1, props, properties=False)
-    k = len(SCENE.objects)
-    own = slice(k + 9, k + 9 + SUMMARY)  # after which (k), own motion and height (5), edges (4)
-    assert (zeroed[..., own] == 0).all() and np.abs(x[..., own]).max() > 0.5
     low = pose(0.8, 0.2, 0.715)
     e = episodes([REST, REST], [[low, REST[1], REST[2]]] * 2)
     e.objects = props
@@ -326,57 +322,6 @@ def test_each_episode_s_objects_set_its_frames_heights_and_strata():
     # a cube that settled 3.5 cm below its upright resting height (as a hull may, on another face) and stays there
     e = episodes([[low, REST[1], REST[2]]], [[low, REST[1], REST[2]]])
     assert STRATA[outcomes(e)[1][0]] == "nothing_moved"
-
-
-def test_an_object_s_outline_is_how_far_it_reaches_along_each_ray():
-    """A 10 x 6 cm box reaches 5 cm along x, 3 cm along y and, along the diagonal, to its long side at 3 / sin 45
-    cm; a cylinder its radius everywhere; a capsule its radius plus its straight half along x. An ell's origin is
-    its bounding box's centre, over the notch between its bars: the rays into the notch meet none of it (0), and the
-    outline is what tells it from the box it fills."""
-    step = 5e-4
-    box = outline(ObjectSpec("b", "box", (0.05, 0.03, 0.04), GRAY, 0.1, (0, 0)), step)
-    assert box.shape == (OUTLINE_RAYS,)
-    quarter = OUTLINE_RAYS // 4
-    assert box[0] == pytest.approx(0.05, abs=step) and box[2 * quarter] == pytest.approx(0.05, abs=step)
-    assert box[quarter] == pytest.approx(0.03, abs=step) and box[3 * quarter] == pytest.approx(0.03, abs=step)
-    assert box[quarter // 2] == pytest.approx(0.03 / np.sin(np.pi / 4), abs=step)
-    can = outline(ObjectSpec("c", "cylinder", (0.04, 0.05), GRAY, 0.1, (0, 0)), step)
-    np.testing.assert_allclose(can, 0.04, atol=step)
-    capsule = outline(ObjectSpec("p", "capsule", (0.03, 0.04), GRAY, 0.1, (0, 0)), step)
-    assert capsule[0] == pytest.approx(0.07, abs=step) and capsule[quarter] == pytest.approx(0.03, abs=step)
-    ell_spec = ObjectSpec("l", "ell", (0.06, 0.05, 0.015, 0.02), GRAY, 0.1, (0, 0))
-    ell = outline(ell_spec, step)
-    # bars: along x over y in [-6.5, -3.5] cm of the origin, along y over x in [3, 6] cm (the bounding box's centre)
-    assert ell[0] == pytest.approx(0.06, abs=step) and ell[3 * quarter] == pytest.approx(0.065, abs=step)
-    assert (ell[quarter + 1 : 2 * quarter + 2] == 0).all()  # up and to the left: the notch
-    v = object_vector(ell_spec)
-    np.testing.assert_allclose(v[SUMMARY:], ell)
-    assert [PROPERTIES[i] for i in (SUMMARY, len(PROPERTIES) - 1)] == ["outline_00", f"outline_{OUTLINE_RAYS - 1:02d}"]
-
-
-def test_with_outlines_each_arm_sphere_reads_how_far_it_passes_outside_the_object():
-    """A 3 cm sphere resting against the +x face of a 10 x 6 cm box reads 0 cm outside it, and 2 cm when 2 cm
-    further out; against a cube of 5 cm half extents turned a quarter turn, the same. Without outlines the inputs
-    are those of a model that reads none: the properties before the outline, and no sphere gap."""
-    flat = ObjectSpec("box", "box", (0.05, 0.03, 0.04), GRAY, 0.1, (0, 0))
-    props = SCENE.properties.copy()[None]
-    props[0, 0] = object_vector(flat)
-    now = object_state(np.array([REST]))
-    radii = np.full(1, 0.03)
-    plain, _ = features(SCENE, radii, now, now, np.zeros((1, 1, 3)), np.zeros((1, 1, 3)), props)
-    k = len(SCENE.objects)
-    for offset, outside in ((0.0, 0.0), (0.02, 0.02)):
-        for yaw, half in ((0.0, 0.05), (np.pi / 2, 0.03)):
-            turned = now.copy()
-            turned[0, 0, 3] = yaw
-            ball = turned[:, :1, :3] + np.array([half + 0.03 + offset, 0.0, 0.0])  # along world x
-            x, _ = features(SCENE, radii, turned, turned, ball, ball, props, outlines=True)
-            assert x.shape[-1] == plain.shape[-1] + OUTLINE_RAYS + 1  # one sphere: one gap
-            assert x[0, 0, -1] == pytest.approx(outside * 10, abs=0.01)  # decimetres
-    # the outline itself sits right after the summary properties, in decimetres
-    own = slice(k + 9 + SUMMARY, k + 9 + SUMMARY + OUTLINE_RAYS)
-    x, _ = features(SCENE, radii, now, now, np.zeros((1, 1, 3)), np.zeros((1, 1, 3)), props, outlines=True)
-    np.testing.assert_allclose(x[0, 0, own], outline(flat) * 10, atol=1e-5)
 
 
 def sliding(masses: list[float], rng: np.random.Generator, frames: int = 6) -> EpisodeSet:
@@ -402,12 +347,11 @@ def sliding(masses: list[float], rng: np.random.Generator, frames: int = 6) -> E
 
 
 def test_a_model_tells_objects_apart_by_their_properties():
-    """Trained on cubes of 0.05 to 0.1 kg (they slide 5 cm) and 0.4 to 0.8 kg (they stay), in any slot, a model
-    predicts that an unseen 0.07 kg cube slides and an unseen 0.6 kg one in the same place stays; with the property
-    inputs zeroed (the ablation) it cannot tell them apart and predicts the same for both."""
+    """Trained on cubes of 0.05 to 0.1 kg (they slide 5 cm) and 0.4 to 0.8 kg (they stay), in any slot, the baseline
+    model predicts that an unseen 0.07 kg cube slides and an unseen 0.6 kg one in the same place stays."""
     import torch
 
-    from babblegen.worldmodel.model import TrainSettings, WorldModel
+    from babblegen.worldmodel.baseline import TrainSettings, WorldModel
 
     threads = torch.get_num_threads()
     torch.set_num_threads(1)  # a network this small trains fastest on one thread, as the evaluation's workers do
@@ -418,20 +362,14 @@ def test_a_model_tells_objects_apart_by_their_properties():
     test = EpisodeSet.union([sliding([0.07], np.random.default_rng(5)), sliding([0.6], np.random.default_rng(5))])
     slot = int(np.flatnonzero(test.objects[0, :, PROPERTY["mass"]] == 0.07)[0])
     np.testing.assert_array_equal(test.poses[0][0], test.poses[1][0])
-    moved = {}
     try:
-        for object_inputs, outlines in ((True, True), (False, False), (True, False)):
-            settings = TrainSettings(steps=400, check=100, patience=3, hidden=64, batch=256)
-            model = WorldModel.fit(train, replace(settings, object_inputs=object_inputs, outlines=outlines))
-            pred = model.predict(test)
-            moved[object_inputs, outlines] = pred[:, slot, 0] - test.first[:, slot, 0]
+        model = WorldModel.fit(train, TrainSettings(steps=400, check=100, patience=3, hidden=64, batch=256))
+        moved = model.predict(test)[:, slot, 0] - test.first[:, slot, 0]
     finally:
         torch.set_num_threads(threads)
-    for outlines in (False, True):  # the outlines (the same cube's in every episode) change nothing of it
-        assert moved[True, outlines][0] == pytest.approx(0.05, abs=0.01) and abs(moved[True, outlines][1]) < 0.005
-    assert moved[False, False][0] == moved[False, False][1]
+    assert moved[0] == pytest.approx(0.05, abs=0.01) and abs(moved[1]) < 0.005
     # the same model, asked with the scene's objects instead (rollout's default), sees other objects
-    first = [object_state(p[0]) for p in test.poses]
+    first = [p[0] for p in test.poses]
     assert model.rollout(first, test.actions, [s[0] for s in test.states]).shape == (2, 3, 4)
 
 
@@ -450,10 +388,7 @@ def turn_about(v: np.ndarray, centre: np.ndarray, angle: float) -> np.ndarray:
 def test_the_push_frame_points_from_the_arm_to_the_object_and_turns_with_the_scene():
     """A sphere passing 8 cm on the object's +x side pushes it along -x: its push frame points along -x (yaw pi).
     Turning the whole scene (objects, their yaws, the arm) about an object's centre changes nothing it sees in that
-    frame but the table's edges, round or not, and its motion in that frame neither; in its own frame a round
-    object (read in the world's frame) sees the turn."""
-    from babblegen.worldmodel.model import push_frame
-
+    frame but the table's edges, round or not, and its motion in that frame neither."""
     radii = np.array([0.03, 0.02])
     now = object_state(np.array([REST]))
     arm0 = now[:, :1, :3] + np.array([[[0.08, 0.0, 0.0], [0.3, 0.3, 0.3]]])
@@ -465,8 +400,8 @@ def test_the_push_frame_points_from_the_arm_to_the_object_and_turns_with_the_sce
     after = now + rng.normal(0, 0.01, now.shape)
     after[..., 1:, 3] = now[..., 1:, 3]  # round objects keep no yaw
     k = len(SCENE.objects)
-    edges = np.zeros(features(SCENE, radii, now, before, arm0, arm1)[0].shape[-1] + 2, dtype=bool)
-    edges[k + 5 : k + 9] = True  # after "which object" (k) and its own motion and height (5)
+    edges = np.zeros(features(SCENE, radii, now, before, arm0, arm1, None, np.zeros((1, k)))[0].shape[-1], dtype=bool)
+    edges[k + 7 : k + 11] = True  # after "which object" (k), its own motion, height and turn (7)
     for slot in range(k):  # the cube, the can, the ball
         centre = now[0, slot, :2]
         angle = 0.7 + slot
@@ -474,43 +409,9 @@ def test_the_push_frame_points_from_the_arm_to_the_object_and_turns_with_the_sce
         seen = []
         for state, last, a0, a1, end in ((now, before, arm0, arm1, after), turned):
             yaw = push_frame(state, a0, a1, radii)
-            x, gap = features(SCENE, radii, state, last, a0, a1, frame_yaw=yaw)
-            seen.append((x[0, slot, ~edges], targets(SCENE, state, end, frame_yaw=yaw)[0][0, slot], gap))
-            np.testing.assert_allclose(
-                apply(SCENE, state, targets(SCENE, state, end, frame_yaw=yaw)[0], None, yaw), end, atol=1e-6
-            )
+            x, gap = features(SCENE, radii, state, last, a0, a1, None, yaw)
+            seen.append((x[0, slot, ~edges], targets(SCENE, state, end, None, yaw)[0][0, slot], gap))
+            np.testing.assert_allclose(apply(state, targets(SCENE, state, end, None, yaw)[0], yaw), end, atol=1e-6)
         np.testing.assert_allclose(seen[0][0], seen[1][0], atol=1e-4)
         np.testing.assert_allclose(seen[0][1][:3], seen[1][1][:3], atol=1e-4)
         np.testing.assert_allclose(seen[0][2], seen[1][2], atol=1e-9)
-    own = features(SCENE, radii, now, before, arm0, arm1)[0][0, 1]
-    turned_own = features(SCENE, radii, *(turn_about(v, now[0, 1, :2], 0.7) for v in (now, before, arm0, arm1)))[0][
-        0, 1
-    ]
-    assert np.abs(own - turned_own).max() > 0.1
-
-
-def test_a_bounded_model_answers_beyond_its_data_as_at_its_edge():
-    """Trained on cubes of 0.05 to 0.1 kg (they slide) and 0.4 to 0.8 kg (they stay), a model whose rollouts clamp
-    their inputs to the training range predicts for a 50 kg cube exactly what it predicts for the heaviest it saw,
-    and for a 5 g cube what it predicts for the lightest: the 5 g cube slides its 5 cm, the 50 kg one stays."""
-    import torch
-
-    from babblegen.worldmodel.model import TrainSettings, WorldModel
-
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    rng = np.random.default_rng(4)
-    masses = np.where(rng.random(40) < 0.5, rng.uniform(0.05, 0.1, 40), rng.uniform(0.4, 0.8, 40))
-    masses[:2] = 0.05, 0.8  # the training range's edges, exactly
-    train = sliding(masses.tolist(), rng)
-    probes = (0.005, 0.05, 0.8, 50.0)
-    test = EpisodeSet.union([sliding([m], np.random.default_rng(5)) for m in probes])
-    slot = int(np.flatnonzero(test.objects[0, :, PROPERTY["mass"]] == 0.005)[0])
-    try:
-        settings = TrainSettings(steps=400, check=100, patience=3, hidden=64, batch=256, bounded=True)
-        model = WorldModel.fit(train, settings)
-        moved = model.predict(test)[:, slot, 0] - test.first[:, slot, 0]
-    finally:
-        torch.set_num_threads(threads)
-    assert moved[0] == moved[1] and moved[2] == moved[3]
-    assert moved[0] == pytest.approx(0.05, abs=0.01) and abs(moved[3]) < 0.005

@@ -8,22 +8,11 @@ time. Objects on the table are deliberately not obstacles: touching them is the 
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
+from babblegen.shapes import Box
 from babblegen.world.exact import matvec, row_norm
 from babblegen.world.kinematics import ArmKinematics, Shape
-
-
-@dataclass(frozen=True)
-class Box:
-    """An oriented box obstacle in the world frame."""
-
-    name: str
-    center: tuple[float, float, float]
-    half_extents: tuple[float, float, float]
-    rotation: tuple[tuple[float, ...], ...] = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
 
 
 def shape_spheres(shape: Shape) -> tuple[np.ndarray, np.ndarray]:

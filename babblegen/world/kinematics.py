@@ -271,38 +271,63 @@ class ArmKinematics:
         tol: float = 2e-3,
         max_iters: int = 100,
         damping: float = 0.05,
-        bias: np.ndarray | None = None,
         bias_gain: float = 0.05,
     ) -> tuple[np.ndarray, np.ndarray]:
         """Position-only IK from several seeds at once (damped least squares, limits enforced by clipping).
 
         Iterates until at least one seed has converged (callers pick among the converged ones).
 
-        The 4 redundant degrees of freedom are pulled gently towards `bias` (default: each seed) in the
-        Jacobian's null space, so solutions stay close to where the arm is. Returns the joint solutions
-        (B, dof) and their remaining position errors (B,) in metres.
+        The 4 redundant degrees of freedom are pulled gently towards each seed in the Jacobian's null space, so
+        solutions stay close to where the arm is. Returns the joint solutions (M, dof) and their remaining
+        position errors (M,) in metres: `inverse_positions` for one target.
         """
-        q = np.clip(np.array(seeds, dtype=np.float64, copy=True), self.lower, self.upper)
-        bias = q.copy() if bias is None else np.broadcast_to(bias, q.shape)
+        q, err = self.inverse_positions(np.asarray(target, dtype=np.float64)[None], np.asarray(seeds)[None], tol,
+                                        max_iters, damping, bias_gain)  # fmt: skip
+        return q[0], err[0]
+
+    def inverse_positions(
+        self,
+        targets: np.ndarray,
+        seeds: np.ndarray,
+        tol: float = 2e-3,
+        max_iters: int = 100,
+        damping: float = 0.05,
+        bias_gain: float = 0.05,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """`inverse_position` for B targets (B, 3) at once, each from its own M seeds ``seeds`` (B, M, dof): each
+        target's seeds iterate until one of them converges, as if it were alone (every product is row by row, so a
+        target's answer does not depend on the others). Returns (B, M, dof) solutions and (B, M) errors."""
+        b, m = seeds.shape[:2]
+        q = np.clip(np.array(seeds, dtype=np.float64).reshape(b * m, -1), self.lower, self.upper)
+        bias = q.copy()
+        goal = np.repeat(np.asarray(targets, dtype=np.float64), m, axis=0)
+        err = np.full(b * m, np.inf)
+        live = np.ones(b, dtype=bool)
         eye3, eye_n = np.eye(3), np.eye(self.dof)
-        err = np.full(len(q), np.inf)
         for _ in range(max_iters):
-            jac, tool = self.jacobian(q)
-            e = target - tool
-            err = row_norm(e)
-            active = err > tol
-            if not active.all():
+            rows = np.flatnonzero(np.repeat(live, m))
+            if not len(rows):
+                break
+            jac, tool = self.jacobian(q[rows])
+            e = goal[rows] - tool
+            err[rows] = row_norm(e)
+            going = (err[rows] > tol).reshape(-1, m).all(axis=1)
+            live[np.flatnonzero(live)[~going]] = False  # one of its seeds converged: that target stops here
+            keep = np.repeat(going, m)
+            rows, jac, e = rows[keep], jac[keep], e[keep]
+            if not len(rows):
                 break
             # BLAS-free products (babblegen.world.exact): the same solution on any CPU
             jac_t = jac.transpose(0, 2, 1)
             jpinv = matmul(jac_t, inv3(matmul(jac, jac_t) + damping**2 * eye3))
             step = matvec(jpinv, e)
             null = eye_n - matmul(jpinv, jac)
-            step += bias_gain * matvec(null, bias - q)
+            step += bias_gain * matvec(null, bias[rows] - q[rows])
             # cap the step to keep the linearisation honest
             norm = row_norm(step)[:, None]
             step *= np.minimum(1.0, 0.5 / np.maximum(norm, 1e-12))
-            q = np.where(active[:, None], np.clip(q + step, self.lower, self.upper), q)
-        else:
-            err = row_norm(target - self.tool_position(q))
-        return q, err
+            q[rows] = np.clip(q[rows] + step, self.lower, self.upper)
+        rows = np.flatnonzero(np.repeat(live, m))
+        if len(rows):  # ran out of iterations: the error where they ended
+            err[rows] = row_norm(goal[rows] - self.tool_position(q[rows]))
+        return q.reshape(b, m, -1), err.reshape(b, m)

@@ -15,7 +15,8 @@ import numpy as np
 
 from babblegen.robot import RobotSpec
 from babblegen.scene import TaskSpec
-from babblegen.world.collision import Box, SphereCollisionModel
+from babblegen.shapes import Box
+from babblegen.world.collision import SphereCollisionModel
 from babblegen.world.exact import row_norm
 from babblegen.world.kinematics import ArmKinematics, ReachShell, UrdfModel
 from babblegen.world.planner import JointPlanner
@@ -91,32 +92,65 @@ class ArmPlanner:
         return q, self.kin.tool_position(q)
 
     def solve_ik(self, target: np.ndarray, seed_q: np.ndarray) -> tuple[np.ndarray | None, str]:
-        """A collision-free joint configuration reaching `target`, preferring one close to `seed_q`.
+        """A collision-free joint configuration reaching `target`, preferring one close to `seed_q`, or None and
+        the reason there is none: `solve_iks` for one target."""
+        return self.solve_iks(np.asarray(target, dtype=np.float64)[None], np.asarray(seed_q)[None])[0]
 
-        Deterministic: the same target and seed give the same answer (restarts draw from a generator
-        seeded by the target), so a genome always produces the same movement.
+    def solve_iks(self, targets: np.ndarray, seeds: np.ndarray) -> list[tuple[np.ndarray | None, str]]:
+        """Per target (B, 3), a collision-free joint configuration reaching it, preferring one close to its seed
+        (B, dof), or None and the reason there is none. Stages: from the seed and home (smallest motion), then
+        from stored configurations whose tool is near the target, then random restarts; IK stops at the first seed
+        that converges, so order matters. The first two stages run for every target at once (each target's answer
+        is what it would be alone), the restarts one target at a time.
+
+        Deterministic: the same target and seed give the same answer (restarts draw from a generator seeded by
+        the target), so a genome always produces the same movement.
         """
-        target = np.asarray(target, dtype=np.float64)
-        if self.shoulder_distance(target) > self.reach:
-            return None, "out_of_reach"
         s = self.settings
-        rng = np.random.default_rng(np.frombuffer(np.round(target, 9).tobytes(), dtype=np.uint32))
-        near = np.argsort(row_norm(self.bank_tool - target), kind="stable")[: max(s.ik_seeds - 2, 1)]
-        # Stages: from where the arm is (smallest motion), then from stored configurations whose tool is near
-        # the target, then random restarts. IK stops at the first seed that converges, so order matters.
-        stages = [np.vstack([seed_q, self.home]), self.bank_q[near]]
-        stages += [rng.uniform(self.kin.lower, self.kin.upper, (s.ik_seeds, self.kin.dof)) for _ in range(2)]
-        found_any = False
-        for seeds in stages:
-            q, err = self.kin.inverse_position(target, seeds, tol=s.ik_tolerance * 0.5)
-            ok = err < s.ik_tolerance
-            if not ok.any():
-                continue
-            found_any = True
-            cand = q[ok][~self.collision.in_collision(q[ok])]
-            if len(cand):
-                return cand[np.argmin(np.abs(cand - seed_q).sum(axis=1))], ""
-        return None, "target_in_collision" if found_any else "no_ik"
+        targets = np.asarray(targets, dtype=np.float64)
+        out: list[tuple[np.ndarray | None, str]] = [(None, "out_of_reach")] * len(targets)
+        found_any = np.zeros(len(targets), dtype=bool)
+        pending = np.flatnonzero(self.shoulder_distance(targets) <= self.reach)
+        n_bank = max(s.ik_seeds - 2, 1)
+        for stage in range(2):
+            if not len(pending):
+                return out
+            if stage == 0:
+                starts = np.stack([seeds[pending], np.broadcast_to(self.home, (len(pending), len(self.home)))], 1)
+            else:
+                dist = row_norm(self.bank_tool[None] - targets[pending][:, None])
+                starts = self.bank_q[np.argsort(dist, axis=1, kind="stable")[:, :n_bank]]
+            q, err = self.kin.inverse_positions(targets[pending], starts, tol=s.ik_tolerance * 0.5)
+            left = []
+            for j, i in enumerate(pending):
+                if self._choose(q[j], err[j], seeds[i], out, i):
+                    found_any[i] = True
+                    if out[i][0] is not None:
+                        continue
+                left.append(i)
+            pending = np.array(left, dtype=np.int64)
+        for i in pending:  # random restarts
+            rng = np.random.default_rng(np.frombuffer(np.round(targets[i], 9).tobytes(), dtype=np.uint32))
+            for starts in [rng.uniform(self.kin.lower, self.kin.upper, (s.ik_seeds, self.kin.dof)) for _ in range(2)]:
+                q, err = self.kin.inverse_position(targets[i], starts, tol=s.ik_tolerance * 0.5)
+                if self._choose(q, err, seeds[i], out, i):
+                    found_any[i] = True
+                    if out[i][0] is not None:
+                        break
+            if out[i][0] is None:
+                out[i] = (None, "target_in_collision" if found_any[i] else "no_ik")
+        return out
+
+    def _choose(self, q: np.ndarray, err: np.ndarray, seed: np.ndarray, out: list, i: int) -> bool:
+        """Among one stage's solutions (M, dof) of target ``i``, the collision-free converged one nearest ``seed``
+        goes to ``out[i]``; whether any converged."""
+        ok = err < self.settings.ik_tolerance
+        if not ok.any():
+            return False
+        cand = q[ok][~self.collision.in_collision(q[ok])]
+        if len(cand):
+            out[i] = (cand[np.argmin(np.abs(cand - seed).sum(axis=1))], "")
+        return True
 
     def plan_command(self, command: Command) -> Plan:
         """Joint path home -> targets (not yet back), or the reason it does not exist."""

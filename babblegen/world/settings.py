@@ -5,8 +5,6 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, field, replace
 from typing import Any
 
-import numpy as np
-
 from babblegen.objects import ObjectRanges, check_object_set
 
 MAX_CAMERA_SIDE = 2048  # pixels: larger frames exhaust the CPU renderer and the video encoder
@@ -180,13 +178,3 @@ def cameras_from_names(names: list[str], depth: bool | None, segmentation: bool 
 
 # Stored before cameras were a setting: the head camera's colour, nothing else.
 LEGACY_CAMERAS = ({"name": "head", "mount": "head"},)
-
-
-def timed_path(path: np.ndarray, settings: WorldSettings) -> np.ndarray:
-    """Joint targets at the control rate along a piecewise-linear joint path (n, dof) at ``max_joint_speed`` on the
-    fastest joint of each segment: what the world executes, and what a planner scoring paths without it predicts."""
-    dt = 1.0 / settings.control_freq
-    seg = np.abs(np.diff(path, axis=0)).max(axis=1) / settings.max_joint_speed
-    t_knots = np.concatenate([[0.0], np.cumsum(seg)])
-    t = np.arange(0.0, t_knots[-1] + dt, dt)
-    return np.stack([np.interp(t, t_knots, path[:, j]) for j in range(path.shape[1])], axis=1)

@@ -19,13 +19,22 @@ import torch
 
 from babblegen.contact_events import contact_pairs
 from babblegen.objects import slot_task
-from babblegen.scene import ObjectSpec, TaskSpec
+from babblegen.scene import TaskSpec
+from babblegen.shapes import ObjectSpec
 from babblegen.starts import layout_poses
 from babblegen.world.cameras import CameraRig
 from babblegen.world.exact import row_norm
 from babblegen.world.planning import ArmPlanner, Plan
 from babblegen.world.rollout import Command, Frames, Rollout
-from babblegen.world.settings import WorldSettings, timed_path
+from babblegen.world.schedule import (
+    frames_per_step,
+    movement_schedule,
+    recorded_actions,
+    timed_path,
+    too_long,
+    way_home,
+)
+from babblegen.world.settings import WorldSettings
 
 
 def _impulse(contact) -> tuple[float, float, float]:
@@ -241,27 +250,9 @@ class World:
             since[k] += math.hypot(*v)
         return touched
 
-    def _way_home(self, out_path: np.ndarray) -> np.ndarray:
-        """The joint path from the end of ``out_path`` back home (`WorldSettings.return_home`)."""
-        if self.settings.return_home == "direct":
-            last = out_path[-1]
-            if self.planner.model.motion_free(last, self.home, self.planner.resolution):
-                return np.stack([last, self.home])
-        return out_path[::-1]
-
     def _timed_path(self, path: np.ndarray) -> np.ndarray:
         """Joint targets at the control rate along a piecewise-linear path at max_joint_speed."""
         return timed_path(path, self.settings)
-
-    def _move_steps(self, out: np.ndarray, out_path: np.ndarray, approach: int) -> float:
-        """The control steps of the movement out (``out``, timed from ``out_path``) that count toward
-        ``max_move_seconds``: all of them with ``count_approach``, else those after the first target, which the
-        path reaches at knot ``approach``."""
-        s = self.settings
-        if s.count_approach:
-            return float(len(out))
-        approach_s = np.abs(np.diff(out_path[: approach + 1], axis=0)).max(axis=1).sum() / s.max_joint_speed
-        return len(out) - approach_s * s.control_freq
 
     def reset(self, start: np.ndarray | None = None, objects: tuple[ObjectSpec, ...] | None = None) -> None:
         """Robot at home, every object at its start pose (the task's, or the varied start ``start``: (n_objects,
@@ -329,18 +320,14 @@ class World:
             return Rollout(command, False, reason, ee_targets=targets, timings=timings)
         s = self.settings
         out = self._timed_path(out_path)
-        bound = s.max_move_seconds * s.control_freq
-        if s.max_move_seconds and self._move_steps(out, out_path, approach) > bound + 1e-9:
+        if too_long(out, out_path, approach, s):
             timings["total"] = time.perf_counter() - t_start
             return Rollout(command, False, "too_long", ee_targets=targets, timings=timings)
-        dwell = np.repeat(out[-1:], max(int(round(s.dwell_seconds * s.control_freq)), 0), axis=0)
-        home_path = self._way_home(out_path)
-        back = self._timed_path(home_path)
-        settle = np.repeat(self.home[None], max(int(round(s.settle_seconds * s.control_freq)), 1), axis=0)
-        schedule = np.concatenate([out, dwell, back, settle])
-        per_frame = s.control_freq // s.fps
-        # end on a frame: the last frame is exactly 1 / fps after the one before, as its timestamp says
-        schedule = np.concatenate([schedule, np.repeat(self.home[None], -len(schedule) % per_frame, axis=0)])
+        home_path = way_home(
+            out_path, self.home, s, lambda a, b: self.planner.model.motion_free(a, b, self.planner.resolution)
+        )
+        schedule = movement_schedule(out, home_path, self.home, s)
+        per_frame = frames_per_step(s)
         extra_settle = max(int(round((s.max_settle_seconds - s.settle_seconds) * s.fps)), 0) * per_frame
 
         t_reset = time.perf_counter()
@@ -405,10 +392,7 @@ class World:
         self._arm.qvel = np.zeros(self.kin.dof)
         t_sim += time.perf_counter() - t0
         record(n, render=True)
-        # action[t]: the joint target in force when frame t + 1 is taken, i.e. sent after observing frame t
-        # (LeRobot's convention); after the last frame the arm holds home
-        rec["action"] = [schedule[k * per_frame - 1].astype(np.float32) for k in range(1, len(rec["state"]))]
-        rec["action"].append(self.home.astype(np.float32))
+        rec["action"] = list(recorded_actions(schedule, len(rec["state"]), self.home, s))
 
         ends = np.stack(rec.pop("images"))
         frames = Frames(**{k: np.stack(v) for k, v in rec.items()}, images=None, end_images=ends)

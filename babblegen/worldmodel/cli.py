@@ -12,7 +12,7 @@ from pathlib import Path
 from babblegen.worldmodel.episodes import EvaluationError
 
 DESCRIPTION = """\
-Train a small world model (CPU, minutes) on each training source and score it on held-out test sets: which objects
+Train a learned simulator (CPU, minutes) on each training source and score it on held-out test sets: which objects
 move (F1), where they end up (the median error of their final x, y against "nothing moves" and the training set's
 mean displacement; their yaw), overall and per outcome stratum (nothing moved, one object, several objects, toppled
 / rolled / off the table), and in planning: for goals taken from a test set's episodes (an object's end position
@@ -25,7 +25,8 @@ Each --train source is NAME=DIR[,DIR...], one dataset per repeat; each --test se
 its datasets, seeded apart from every training dataset. --attempts cuts every training dataset to its first N
 attempts (equal simulation); with --equal episodes (or both, the default) every source is then cut to as many
 episodes as the smallest holds. Writes OUT/evaluation.md, OUT/evaluation.json and, for two budgets or more,
-OUT/budgets.png. The model: babblegen/worldmodel/model.py; the measures: docs/world_model.md."""
+OUT/budgets.png. The models: babblegen/worldmodel/simulator.py (graph) and baseline.py (mlp); the measures:
+docs/world_model.md."""
 
 
 def _named_dirs(text: str) -> tuple[str, list[Path]]:
@@ -91,31 +92,27 @@ def register(sub) -> None:
     p.add_argument("--cem-samples", type=int, default=64, help="cem: genomes per goal and iteration [default: 64]")
     p.add_argument("--cem-iterations", type=int, default=4, help="cem: iterations [default: 4]")
     p.add_argument(
+        "--model",
+        choices=("graph", "mlp"),
+        default="graph",
+        help="graph: the learned simulator, an ensemble of graph networks over the objects' surfaces, the arm's "
+        "collision spheres and the table; mlp: the baseline, one network per object over its push frame's bounding "
+        "box and properties [default: graph]",
+    )
+    p.add_argument("--members", type=int, default=None, help="graph: ensemble members [default: 5]")
+    p.add_argument(
         "--steps",
         type=int,
         default=None,
         help="at most this many gradient steps per model, stopped early on its own validation episodes "
-        "[default: 12000]",
+        "[default: 6000 graph, 12000 mlp]",
     )
     p.add_argument(
-        "--outlines",
-        action="store_true",
-        help="the model also reads each object's outline (16 rays from its origin) and how far each arm sphere passes "
-        "outside it: for objects whose shape family no training object has",
-    )
-    p.add_argument(
-        "--frame",
-        choices=("object", "push"),
-        default="push",
-        help="the frame each object's inputs and motion are in: push: pointing from where the arm passes nearest to "
-        "its centre, the same for every shape; object: its own yaw modulo its symmetry (the model before the push "
-        "frame) [default: push]",
-    )
-    p.add_argument(
-        "--bounded-inputs",
-        action="store_true",
-        help="rollouts clamp every input of the model to the range its training data spans: what it says of an "
-        "object or a place beyond its data is what it says at the data's edge, not an extrapolation",
+        "--save-models",
+        type=Path,
+        default=None,
+        metavar="DIR",
+        help="graph: write every trained model to DIR (load one with babblegen.worldmodel.api.load_model)",
     )
     p.add_argument("--seed", type=int, default=0, help="repeat r trains with seed SEED + r [default: 0]")
     p.add_argument("--workers", type=int, default=None, help="processes [default: one per core]")
@@ -124,11 +121,12 @@ def register(sub) -> None:
 
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
+    from babblegen.worldmodel.baseline import TrainSettings
     from babblegen.worldmodel.episodes import EpisodeSet, read_dataset
     from babblegen.worldmodel.experiment import Source, check_apart, run_experiment
-    from babblegen.worldmodel.model import TrainSettings
     from babblegen.worldmodel.planning import PlanningSettings, build_task
     from babblegen.worldmodel.report import write
+    from babblegen.worldmodel.simulator import GraphSettings
 
     for flag in ("train", "test"):
         names = [name for name, _ in getattr(args, flag)]
@@ -182,16 +180,22 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         if plan is None:
             print(f"planning: {plan_test} holds no goal (no episode moved an object 5 cm onto the table): skipped")
     steps = {} if args.steps is None else {"steps": args.steps}
-    train = TrainSettings(
-        seed=args.seed, outlines=args.outlines, frame=args.frame, bounded=args.bounded_inputs, **steps
-    )
+    if args.model == "graph":
+        members = {} if args.members is None else {"members": args.members}
+        train = GraphSettings(seed=args.seed, **steps, **members)
+        if train.members < 1:
+            raise EvaluationError(f"--members must be at least 1, got {train.members}")
+    else:
+        if args.members is not None or args.save_models is not None:
+            raise EvaluationError("--members and --save-models are for --model graph")
+        train = TrainSettings(seed=args.seed, **steps)
     if train.steps < 1:
         raise EvaluationError(f"--steps must be at least 1, got {train.steps}")
     modes = ["attempts", "episodes"] if args.equal == "both" else [args.equal]
     settings = {
         "train": {name: [str(d) for d in dirs] for name, dirs in args.train},
         "test": {name: [str(d) for d in dirs] for name, dirs in args.test},
-        "model": asdict(train),
+        "model": {"kind": args.model, **asdict(train)},
         "planning": {**asdict(plan_settings), "test": plan_test},
         "command": " ".join(sys.argv),
     }
@@ -204,8 +208,9 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         return write(result, args.out)
 
     result = run_experiment(
-        sources, tests, args.attempts or [None], modes, train, plan, plan_settings, workers, echo=print, progress=finish
-    )
+        sources, tests, args.attempts or [None], modes, train, plan, plan_settings, workers, echo=print,
+        progress=finish, save=args.save_models,
+    )  # fmt: skip
     written = finish(result)
     print(f"done in {time.perf_counter() - started:.0f} s: " + ", ".join(str(p) for p in written))
     return 0

@@ -17,7 +17,8 @@ from pathlib import Path
 import numpy as np
 
 from babblegen.config import ConfigError
-from babblegen.scene import SHAPES, ObjectSpec
+from babblegen.shapes import SHAPES, SURFACE_POINTS, ObjectSpec
+from babblegen.worldmodel.poses import tilt_of
 
 ACTION, STATE, POSES = "action", "observation.state", "observation.environment_state"
 COLUMNS = (ACTION, STATE, POSES)
@@ -31,10 +32,9 @@ class EvaluationError(ConfigError):
     """Bad input to the evaluation: reported on one line, exit status 2."""
 
 
-OUTLINE_RAYS = 16
 # An object's properties as the world model reads them (`object_vector`): one number each, SI units.
 PROPERTIES = (
-    *(f"shape_{s}" for s in SHAPES),  # one-hot over babblegen.scene.SHAPES
+    *(f"shape_{s}" for s in SHAPES),  # one-hot over babblegen.shapes.SHAPES
     "footprint_radius",  # m: the upright circle around its horizontal extent, whatever its yaw
     "half_height",  # m: its origin's height above the table when it rests upright
     "half_extent_x",  # m: its bounding box's half extents in its own frame
@@ -47,73 +47,13 @@ PROPERTIES = (
     "dynamic_friction",
     "restitution",
     "yaw_symmetry",  # rad: the turn about the vertical after which it looks the same (0: any turn)
-    # m: its outline, resting upright: how far it reaches from its origin along each of OUTLINE_RAYS directions of
-    # its own frame (ray i at angle 2 pi i / OUTLINE_RAYS from its x axis; 0 where the ray meets none of it)
-    *(f"outline_{i:02d}" for i in range(OUTLINE_RAYS)),
+    # m: SURFACE_POINTS points on its collision surface in its own frame (`ObjectSpec.surface`), then their outward
+    # unit normals
+    *(f"surface_{i:02d}_{a}" for i in range(SURFACE_POINTS) for a in "xyz"),
+    *(f"normal_{i:02d}_{a}" for i in range(SURFACE_POINTS) for a in "xyz"),
 )
 PROPERTY = {name: i for i, name in enumerate(PROPERTIES)}
-SUMMARY = PROPERTY["outline_00"]  # the properties before the outline: shape, sizes, mass, material, symmetry
-
-
-def yaw_symmetry(spec: ObjectSpec) -> float:
-    """The turn about the vertical after which an object looks the same: 0 for any turn (upright cylinders,
-    spheres), pi / 2 for a box of square footprint, pi for other boxes and for what lies along x (capsules,
-    dumbbells), 2 pi (none) for ells, tees and hulls."""
-    if spec.shape in ("cylinder", "sphere"):
-        return 0.0
-    if spec.shape == "box":
-        return float(np.pi / 2 if np.isclose(spec.size[0], spec.size[1]) else np.pi)
-    if spec.shape in ("capsule", "dumbbell"):
-        return float(np.pi)
-    return float(2 * np.pi)
-
-
-def half_extents(spec: ObjectSpec) -> np.ndarray:
-    """(3,) the half extents of the object's bounding box in its own frame, over its parts."""
-    high = np.zeros(3)
-    for part in spec.parts():
-        s = part.size
-        if part.kind == "box":
-            half = np.array(s)
-        elif part.kind == "cylinder":  # axis z
-            half = np.array([s[0], s[0], s[1]])
-        elif part.kind == "sphere":
-            half = np.full(3, s[0])
-        elif part.kind == "capsule":  # axis x
-            half = np.array([s[0] + s[1], s[0], s[0]])
-        else:  # hull
-            half = np.abs(np.asarray(part.vertices)).max(axis=0)
-        high = np.maximum(high, np.abs(part.offset) + half)
-    return high
-
-
-def _inside_footprint(part, xy: np.ndarray) -> np.ndarray:
-    """(N,) whether (N, 2) points of the object's frame lie over ``part``'s footprint, resting upright."""
-    s = np.asarray(part.size) + 1e-9  # points on the boundary count as over it
-    d = xy - np.asarray(part.offset[:2])
-    if part.kind == "box":
-        return (np.abs(d[:, 0]) <= s[0]) & (np.abs(d[:, 1]) <= s[1])
-    if part.kind in ("cylinder", "sphere"):
-        return np.hypot(d[:, 0], d[:, 1]) <= s[0]
-    if part.kind == "capsule":  # axis x: within its radius of the segment between the caps' centres
-        return np.hypot(np.maximum(np.abs(d[:, 0]) - s[1], 0.0), d[:, 1]) <= s[0]
-    from scipy.spatial import Delaunay  # hull: inside the convex hull of its points seen from above
-
-    return Delaunay(np.asarray(part.vertices)[:, :2]).find_simplex(d) >= 0
-
-
-def outline(spec: ObjectSpec, step: float = 5e-4) -> np.ndarray:
-    """(OUTLINE_RAYS,) how far the object reaches from its origin along each ray of its own frame, resting upright
-    (the farthest point of its footprint on the ray, to ``step``; 0 where the ray meets none of it): what tells an
-    ell's notch from a box's corner, whatever the shape family."""
-    angles = 2 * np.pi * np.arange(OUTLINE_RAYS) / OUTLINE_RAYS
-    t = np.arange(0.0, spec.footprint_radius + 2 * step, step)
-    points = (t[None, :, None] * np.stack([np.cos(angles), np.sin(angles)], axis=-1)[:, None, :]).reshape(-1, 2)
-    inside = np.zeros(len(points), dtype=bool)
-    for part in spec.parts():
-        inside |= _inside_footprint(part, points)
-    inside = inside.reshape(OUTLINE_RAYS, len(t))
-    return np.where(inside.any(axis=1), t[::-1][np.argmax(inside[:, ::-1], axis=1)], 0.0)
+SUMMARY = PROPERTY["surface_00_x"]  # the properties before the surface: shape, sizes, mass, material, symmetry
 
 
 def object_vector(spec: ObjectSpec) -> np.ndarray:
@@ -128,23 +68,17 @@ def _object_vector(spec: ObjectSpec) -> np.ndarray:
     out[PROPERTY[f"shape_{spec.shape}"]] = 1.0
     out[PROPERTY["footprint_radius"]] = spec.footprint_radius
     out[PROPERTY["half_height"]] = spec.half_height
-    out[PROPERTY["half_extent_x"] : PROPERTY["half_extent_z"] + 1] = half_extents(spec)
+    out[PROPERTY["half_extent_x"] : PROPERTY["half_extent_z"] + 1] = spec.half_extents
     out[PROPERTY["volume"]] = spec.volume
     out[PROPERTY["mass"]] = spec.mass
     out[PROPERTY["density"]] = spec.density
     out[PROPERTY["static_friction"]] = spec.static_friction
     out[PROPERTY["dynamic_friction"]] = spec.dynamic_friction
     out[PROPERTY["restitution"]] = spec.restitution
-    out[PROPERTY["yaw_symmetry"]] = yaw_symmetry(spec)
-    out[SUMMARY:] = outline(spec)
+    out[PROPERTY["yaw_symmetry"]] = spec.yaw_symmetry
+    points, normals = spec.surface(SURFACE_POINTS)
+    out[SUMMARY:] = np.concatenate([points.reshape(-1), normals.reshape(-1)])
     return out
-
-
-def object_spec(data: dict) -> ObjectSpec:
-    """An object from its factors (a sidecar row's) or from run.json's task (whose objects, in runs made before
-    materials were recorded, have PhysX's default material)."""
-    defaults = {"static_friction": 0.3, "dynamic_friction": 0.3, "restitution": 0.0, "color": (0.5, 0.5, 0.5, 1.0)}
-    return ObjectSpec.from_factors({**defaults, **data})
 
 
 @dataclass(frozen=True)
@@ -165,7 +99,7 @@ class Scene:
         c, h = task["table"]["center"], task["table"]["half_extents"]
         return cls(
             task=task["name"],
-            specs=tuple(object_spec(o) for o in task["objects"]),
+            specs=tuple(ObjectSpec.from_record(o) for o in task["objects"]),
             table=(c[0] - h[0], c[0] + h[0], c[1] - h[1], c[1] + h[1]),
             top=float(c[2] + h[2]),
             robot=task["robot_uid"],
@@ -192,7 +126,7 @@ class Scene:
     @property
     def yaw_symmetry(self) -> np.ndarray:
         """Per object, the turn about the vertical after which it looks the same (0: any turn, round objects)."""
-        return np.array([yaw_symmetry(o) for o in self.specs])
+        return np.array([o.yaw_symmetry for o in self.specs])
 
 
 @dataclass
@@ -401,7 +335,7 @@ def episode_objects(scene: Scene, rows: list[dict]) -> np.ndarray:
         for k, factors in enumerate(objects):
             key = json.dumps(factors, sort_keys=True)
             if key not in cache:
-                cache[key] = object_vector(object_spec(factors))
+                cache[key] = object_vector(ObjectSpec.from_record(factors))
             out[i, k] = cache[key]
     return out
 
@@ -416,18 +350,6 @@ def _read_columns(root: Path, repo_id: str) -> dict:
     datasets.disable_progress_bars()
     ds = load_dataset(root, repo_id)
     return ds.hf_dataset.select_columns(["episode_index", *COLUMNS]).with_format("numpy")[:]
-
-
-def yaw_of(q: np.ndarray) -> np.ndarray:
-    """Rotation about the world's vertical of (..., 4) quaternions (w, x, y, z), radians."""
-    w, x, y, z = np.moveaxis(q, -1, 0)
-    return np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
-
-
-def tilt_of(q: np.ndarray) -> np.ndarray:
-    """Angle between the object's own up axis and the world's vertical, radians."""
-    w, x, y, z = np.moveaxis(q, -1, 0)
-    return np.arccos(np.clip(1 - 2 * (x * x + y * y), -1.0, 1.0))
 
 
 def object_distance_moved(episodes: EpisodeSet) -> np.ndarray:

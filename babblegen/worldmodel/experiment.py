@@ -11,14 +11,15 @@ depends on its data and seed alone, never on the number of workers.
 from __future__ import annotations
 
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass, replace
 from multiprocessing import get_context
+from pathlib import Path
 
 import numpy as np
 
+from babblegen.worldmodel.baseline import TrainSettings, WorldModel
 from babblegen.worldmodel.episodes import STRATA, Dataset, EpisodeSet, EvaluationError, outcomes
 from babblegen.worldmodel.metrics import mean_displacement, score
-from babblegen.worldmodel.model import TrainSettings, WorldModel, object_state
 from babblegen.worldmodel.planning import (
     PlanningSettings,
     PlanningTask,
@@ -26,6 +27,8 @@ from babblegen.worldmodel.planning import (
     bootstrap_ci,
     plan_scores,
 )
+from babblegen.worldmodel.poses import object_state
+from babblegen.worldmodel.simulator import GraphSettings, LearnedSimulator
 
 NOTHING = "nothing moves"
 
@@ -75,19 +78,37 @@ def budgets(sources: list[Source], attempts: int | None, equal: str) -> tuple[li
 _shared: dict = {}
 
 
-def _init(tests: dict[str, EpisodeSet], plan: PlanningTask | None, plan_settings: PlanningSettings) -> None:
+def _init(
+    tests: dict[str, EpisodeSet], plan: PlanningTask | None, plan_settings: PlanningSettings, save: Path | None
+) -> None:
     import torch
 
     torch.set_num_threads(1)
-    _shared.update(tests=tests, plan=plan, plan_settings=plan_settings)
+    _shared.update(tests=tests, plan=plan, plan_settings=plan_settings, save=save)
 
 
-def _fit_and_score(job: tuple[str, int, EpisodeSet, TrainSettings]) -> dict:
-    name, repeat, train, settings = job
+def fit_model(train: EpisodeSet, settings: GraphSettings | TrainSettings) -> LearnedSimulator | WorldModel:
+    """The model ``settings`` describe (`GraphSettings`: the learned simulator; `TrainSettings`: the baseline),
+    trained on ``train``."""
+    if isinstance(settings, GraphSettings):
+        return LearnedSimulator.fit(train, settings)
+    return WorldModel.fit(train, settings)
+
+
+def model_file(save: Path, name: str, attempts: int | None, equal: str, repeat: int) -> Path:
+    """Where `babblegen evaluate --save-models` keeps one model."""
+    budget = "all" if attempts is None else f"{attempts}attempts"
+    return save / f"{name}_{budget}_equal-{equal}_repeat{repeat + 1}.pt"
+
+
+def _fit_and_score(job: tuple[str, int, EpisodeSet, GraphSettings | TrainSettings, tuple]) -> dict:
+    name, repeat, train, settings, (attempts, equal) = job
     tests, plan = _shared["tests"], _shared["plan"]
-    model = WorldModel.fit(train, settings)
+    model = fit_model(train, settings)
     mean = mean_displacement(train)
     out = {"source": name, "repeat": repeat, "episodes": len(train), "steps": model.trained_steps}
+    if _shared["save"] is not None and hasattr(model, "save"):
+        out["saved"] = str(model.save(model_file(_shared["save"], name, attempts, equal, repeat)))
     out["scores"] = {t: score(model.predict(e), e, mean) for t, e in tests.items()}
     if plan is not None:
         out["planning"] = plan_scores(model, plan, _shared["plan_settings"])
@@ -104,12 +125,13 @@ def run_experiment(
     tests: dict[str, EpisodeSet],
     attempt_budgets: list[int | None],
     equal_modes: list[str],
-    train: TrainSettings,
+    train: GraphSettings | TrainSettings,
     plan: PlanningTask | None,
     plan_settings: PlanningSettings,
     workers: int,
     echo=print,
     progress=None,
+    save: Path | None = None,
 ) -> dict:
     """Every (budget, equal mode): per source, the episodes trained on and the scores of each repeat;
     ``progress``, if given, is called with the result so far after each model (a long evaluation keeps what it
@@ -121,8 +143,8 @@ def run_experiment(
             block = {"attempts": attempts, "equal": equal, "sizes": sizes, "sources": {}}
             for r, sets in enumerate(per_repeat):
                 for name, episodes in sets.items():
-                    settings = TrainSettings(**{**asdict(train), "seed": train.seed + r})
-                    jobs.append((len(blocks), (name, r, held_out(episodes, tests), settings)))
+                    settings = replace(train, seed=train.seed + r)
+                    jobs.append((len(blocks), (name, r, held_out(episodes, tests), settings, (attempts, equal))))
             blocks.append(block)
     tests_info = {}
     for name, e in tests.items():
@@ -143,7 +165,7 @@ def run_experiment(
     echo(f"training {len(jobs)} models on {workers} worker(s)")
     context = get_context("spawn")
     with ProcessPoolExecutor(
-        workers, mp_context=context, initializer=_init, initargs=(tests, plan, plan_settings)
+        workers, mp_context=context, initializer=_init, initargs=(tests, plan, plan_settings, save)
     ) as pool:
         futures = [(b, pool.submit(_fit_and_score, job)) for b, job in jobs]
         for done, (b, future) in enumerate(futures, start=1):

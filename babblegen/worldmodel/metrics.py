@@ -19,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 
 from babblegen.worldmodel.episodes import MOVED, STRATA, EpisodeSet, outcomes
-from babblegen.worldmodel.model import object_state, wrap
+from babblegen.worldmodel.poses import object_state, wrap
 
 
 def mean_displacement(train: EpisodeSet) -> np.ndarray:

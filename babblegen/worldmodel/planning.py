@@ -38,7 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from babblegen.worldmodel.episodes import PROPERTIES, EpisodeSet, object_distance_moved
-from babblegen.worldmodel.model import WorldModel, object_state
+from babblegen.worldmodel.poses import object_state
 
 CANDIDATE_ATTEMPTS = 1_000_000_000  # attempt indices of the executed baselines: far from any run's own
 PLAN_ATTEMPTS = 2_000_000_000  # attempt indices of the planners' executed choices
@@ -79,6 +79,7 @@ class PlanningSettings:
         """What the executed goals and baselines depend on: the settings that choose them, and the test set."""
         parts = [self.planner == "rank", self.goals, self.candidates, self.min_move_cm, self.far_cm, self.sigma]
         parts += [self.seed, self.object_share, len(PROPERTIES)]  # the goals' stored object vectors' length
+        parts += ["poses"]  # starts stored as whole poses (before: x, y, z, yaw)
         raw = json.dumps([parts, sorted(set(test.source.tolist())), test.identity.tolist()]).encode()
         return hashlib.blake2b(raw, digest_size=12).hexdigest()
 
@@ -87,7 +88,7 @@ def goal_command(kind: str, values, start, objects: list | None = None):
     """The Command that runs ``values`` from a goal episode's recorded start (``start``: its drawn layout or a
     made start's poses, as the sidecar's row records it; None: the task's scene) with its objects (the row's factors,
     `ObjectSpec.factors`; None: the task's). The one place a recorded start becomes something the world runs."""
-    from babblegen.scene import ObjectSpec
+    from babblegen.shapes import ObjectSpec
     from babblegen.world.rollout import Command
 
     placement = None if start is None else np.asarray(start, float)
@@ -122,7 +123,7 @@ class PlanningTask:
     start: list  # per goal its recorded start (layout or poses; None: the task's scene)
     goal_object: np.ndarray  # (G,) object index
     goal_xy: np.ndarray  # (G, 2) metres
-    first: np.ndarray  # (G, K, 4) the start's object states
+    first: np.ndarray  # (G, K, 7) the start's object poses
     joints0: np.ndarray  # (G, 7) the arm's first joints
     strata: dict[str, np.ndarray]  # name -> (G,) bool
     mutations: int
@@ -306,7 +307,7 @@ def build_task(test: EpisodeSet, settings: PlanningSettings, workers: int, cache
         start=[test.commands[e]["layout"] for e in episodes],
         goal_object=np.array(objects),
         goal_xy=np.stack([test.final[e, k, :2] for e, k in goals]),
-        first=object_state(test.first[episodes]),
+        first=test.first[episodes],
         joints0=np.stack([test.states[e][0] for e in episodes]),
         strata={"arm": touched, "object": ~touched & met, "far": moved * 100 >= settings.far_cm},
         mutations=m,
@@ -342,7 +343,7 @@ def baseline_scores(task: PlanningTask, success_cm: float) -> dict:
     }
 
 
-def rank_scores(model: WorldModel, task: PlanningTask, settings: PlanningSettings) -> dict:
+def rank_scores(model, task: PlanningTask, settings: PlanningSettings) -> dict:
     """The rank planner: the model picks, among the executed candidates (the goal's own genome, its mutations and
     the first random genomes: ``candidates`` in all), the one predicted nearest; per goal the success of its pick
     (of the picks predicted equally near: their mean)."""
@@ -374,7 +375,7 @@ def rank_scores(model: WorldModel, task: PlanningTask, settings: PlanningSetting
     return out
 
 
-def cem_scores(model: WorldModel, task: PlanningTask, settings: PlanningSettings) -> dict:
+def cem_scores(model, task: PlanningTask, settings: PlanningSettings) -> dict:
     """The cem planner: search with the model alone per goal, execute the choice once; its success per goal and
     stratum, the search's wall time, and how the executed movement compares with the one the search scored."""
     from babblegen.worldmodel.planning_cem import CemSettings, cem_plan
@@ -435,7 +436,7 @@ def cem_scores(model: WorldModel, task: PlanningTask, settings: PlanningSettings
     return out
 
 
-def plan_scores(model: WorldModel, task: PlanningTask, settings: PlanningSettings) -> dict:
+def plan_scores(model, task: PlanningTask, settings: PlanningSettings) -> dict:
     """The planner's success with ``model`` (``model`` and ``ci95``, overall and per stratum)."""
     return cem_scores(model, task, settings) if settings.planner == "cem" else rank_scores(model, task, settings)
 

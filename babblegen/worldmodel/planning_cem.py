@@ -8,11 +8,12 @@ sampling distribution to the genomes predicted nearest the goal. Its first popul
 its number of waypoints drawn from the elites' counts. The genome predicted nearest over all iterations is the
 choice. Nothing here runs the simulator: the choice is executed afterwards, once (`planning.execute`).
 
-Scoring a genome must be cheap, so `Commander` does not plan with OMPL: it solves IK for each waypoint exactly as
-`ArmPlanner.solve_ik` does (the first stage batched over every genome at once, the rest by `solve_ik` itself) and
-joins the configurations by straight joint-space segments, timed as `World._timed_path` times them. That is the
-path `ArmPlanner.plan_command` returns whenever every segment is collision-free ("direct", most movements); when
-one is not, the executed path (RRTConnect) differs from the scored one, which the evaluation measures.
+Scoring a genome must be cheap, so `Commander` does not plan with OMPL: it solves IK for each waypoint with the
+world's own `ArmPlanner.solve_iks` (its first stages batched over every genome at once) and joins the
+configurations by straight joint-space segments, scheduled by the world's own code (`babblegen.world.schedule`,
+which `World.rollout` executes). That is the path `ArmPlanner.plan_command` returns whenever every segment is
+collision-free ("direct", most movements); when one is not, the executed path (RRTConnect) differs from the scored
+one, which the evaluation measures.
 """
 
 from __future__ import annotations
@@ -22,8 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from babblegen.world.exact import inv3, matmul, matvec, row_norm
-from babblegen.world.settings import timed_path
+from babblegen.world.schedule import planned_actions
 
 NEARER = 0.001  # metres: a choice must be predicted to bring the goal object at least this much nearer its goal
 
@@ -55,113 +55,21 @@ class Commander:
         self.planner = ArmPlanner(task, robot, self.home, config.world)
         self.kin = self.planner.kin
 
-    # --- IK: `ArmPlanner.solve_ik`, its first two stages batched ----------------------------------------------
-    def _stage(self, targets: np.ndarray, seeds: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """`ArmKinematics.inverse_position` for B targets at once, each from its own M seeds ``seeds`` (B, M,
-        dof): every target's seeds iterate until one of them converges, as the one-target call does. Returns
-        (B, M, dof) configurations and (B, M) errors."""
-        kin, s = self.kin, self.settings
-        tol, damping, bias_gain = s.ik_tolerance * 0.5, 0.05, 0.05
-        b, m = seeds.shape[:2]
-        q = np.clip(seeds.reshape(b * m, -1), kin.lower, kin.upper)
-        bias = q.copy()
-        goal = np.repeat(targets, m, axis=0)
-        err = np.full(b * m, np.inf)
-        live = np.ones(b, dtype=bool)
-        eye3, eye_n = np.eye(3), np.eye(kin.dof)
-        for _ in range(100):
-            rows = np.flatnonzero(np.repeat(live, m))
-            if not len(rows):
-                break
-            jac, tool = kin.jacobian(q[rows])
-            e = goal[rows] - tool
-            err[rows] = row_norm(e)
-            going = (err[rows] > tol).reshape(-1, m).all(axis=1)
-            live[np.flatnonzero(live)[~going]] = False  # one of its seeds converged: that target stops here
-            keep = np.repeat(going, m)
-            rows, jac, e = rows[keep], jac[keep], e[keep]
-            if not len(rows):
-                break
-            jac_t = jac.transpose(0, 2, 1)
-            jpinv = matmul(jac_t, inv3(matmul(jac, jac_t) + damping**2 * eye3))
-            step = matvec(jpinv, e)
-            null = eye_n - matmul(jpinv, jac)
-            step += bias_gain * matvec(null, bias[rows] - q[rows])
-            norm = row_norm(step)[:, None]
-            step *= np.minimum(1.0, 0.5 / np.maximum(norm, 1e-12))
-            q[rows] = np.clip(q[rows] + step, kin.lower, kin.upper)
-        rows = np.flatnonzero(np.repeat(live, m))
-        if len(rows):  # ran out of iterations: the error where they ended
-            err[rows] = row_norm(goal[rows] - kin.tool_position(q[rows]))
-        return q.reshape(b, m, -1), err.reshape(b, m)
-
     def solve_ik(self, targets: np.ndarray, seeds: np.ndarray) -> list[np.ndarray | None]:
-        """`ArmPlanner.solve_ik` of B (target, seed) pairs, the same configurations (or None): its first two
-        stages (from the seed and home; from the bank configurations whose tool is nearest) batched over the
-        targets, the random restarts after them left to `ArmPlanner.solve_ik` itself (rarely reached)."""
-        p, s = self.planner, self.settings
-        out: list[np.ndarray | None] = [None] * len(targets)
-        pending = np.flatnonzero(p.shoulder_distance(targets) <= p.reach)
-        for stage in range(2):
-            if not len(pending):
-                return out
-            if stage == 0:
-                starts = np.stack([seeds[pending], np.broadcast_to(self.home, (len(pending), len(self.home)))], 1)
-            else:
-                dist = row_norm(p.bank_tool[None] - targets[pending][:, None])
-                near = np.argsort(dist, axis=1, kind="stable")[:, : max(s.ik_seeds - 2, 1)]
-                starts = p.bank_q[near]
-            q, err = self._stage(targets[pending], starts)
-            ok = err < s.ik_tolerance
-            free = np.zeros_like(ok)
-            if ok.any():
-                free[ok] = ~p.collision.in_collision(q[ok])
-            left = []
-            for j, i in enumerate(pending):
-                cand = q[j][free[j]]
-                if len(cand):
-                    out[i] = cand[np.argmin(np.abs(cand - seeds[i]).sum(axis=1))]
-                else:
-                    left.append(i)
-            pending = np.array(left, dtype=np.int64)
-        for i in pending:  # the random restarts
-            out[i] = p.solve_ik(targets[i], seeds[i])[0]
-        return out
+        """`ArmPlanner.solve_iks` of B (target, seed) pairs: the configurations `World.plan_command` finds (or
+        None)."""
+        return [q for q, _ in self.planner.solve_iks(targets, seeds)]
 
     # --- the trajectory --------------------------------------------------------------------------------------
-    def _timed_path(self, path: np.ndarray) -> np.ndarray:
-        """Joint targets at the control rate along a piecewise-linear path at max_joint_speed
-        (`World._timed_path`)."""
-        return timed_path(path, self.settings)
-
     def actions(self, out_path: np.ndarray) -> np.ndarray | None:
         """(T, dof) the recorded ``action`` column of a movement along ``out_path`` (home -> targets), as
-        `World.rollout` schedules it (without the settling it adds while objects still move); None when the
-        movement out is too long."""
-        s = self.settings
-        out = self._timed_path(out_path)
-        if s.max_move_seconds:
-            steps = float(len(out))
-            if not s.count_approach:
-                approach = np.abs(np.diff(out_path[:2], axis=0)).max(axis=1).sum() / s.max_joint_speed
-                steps -= approach * s.control_freq
-            if steps > s.max_move_seconds * s.control_freq + 1e-9:
-                return None
-        dwell = np.repeat(out[-1:], max(int(round(s.dwell_seconds * s.control_freq)), 0), axis=0)
-        home_path = out_path[::-1]
-        if s.return_home == "direct" and self.planner.joint_planner.model.motion_free(
-            out_path[-1], self.home, self.planner.joint_planner.resolution
-        ):
-            home_path = np.stack([out_path[-1], self.home])
-        back = self._timed_path(home_path)
-        settle = np.repeat(self.home[None], max(int(round(s.settle_seconds * s.control_freq)), 1), axis=0)
-        schedule = np.concatenate([out, dwell, back, settle])
-        per_frame = s.control_freq // s.fps
-        schedule = np.concatenate([schedule, np.repeat(self.home[None], -len(schedule) % per_frame, axis=0)])
-        frames = len(schedule) // per_frame + 1
-        picked = schedule[per_frame - 1 :: per_frame][: frames - 1]
-        action = np.concatenate([picked, self.home[None]]).astype(np.float32)
-        return action.astype(np.float64)  # as the dataset stores it
+        `World.rollout` schedules it (`babblegen.world.schedule.planned_actions`: without the settling it adds while
+        objects still move); None when the movement out is too long."""
+        joint = self.planner.joint_planner
+        action = planned_actions(
+            out_path, self.home, self.settings, lambda a, b: joint.model.motion_free(a, b, joint.resolution)
+        )
+        return None if action is None else action.astype(np.float64)  # as the dataset stores it
 
     def joint_paths(self, genomes: list[np.ndarray]) -> list[np.ndarray | None]:
         """Per genome (n, 3) normalised waypoints: its joint path home -> each waypoint's IK configuration, or
@@ -251,7 +159,7 @@ def predict_ends(
     so a batch runs about as long as its episodes); ``objects``: each rollout's objects (property vectors; None: the
     task's)."""
     order = np.argsort([len(a) for a in actions], kind="stable")
-    out = np.zeros((len(actions), *first[0].shape))
+    out = np.zeros((len(actions), len(first[0]), 4))
     for at in range(0, len(order), chunk):
         idx = order[at : at + chunk]
         drawn = {} if objects is None else {"objects": [objects[i] for i in idx]}
@@ -281,7 +189,7 @@ def cem_plan(
     objects: np.ndarray | None = None,
 ) -> CemResult:
     """CEM for every goal at once (each goal its own distribution; the model's rollouts of all goals batched):
-    ``first`` (G, K, 4) the starts' object states, ``joints0`` (G, dof) the arm's first joints, ``objects`` (G, K,
+    ``first`` (G, K, 7) the starts' object poses, ``joints0`` (G, dof) the arm's first joints, ``objects`` (G, K,
     P) the starts' objects (property vectors; None: the task's)."""
     started, cpu = time.perf_counter(), time.process_time()
     g_count = len(goal_object)

@@ -62,7 +62,7 @@ class SimulatorModel:
         for f, a in zip(first, actions, strict=True):
             genome, at = self.recorder.origin[np.asarray(a).tobytes()]
             final = self.execute(self.goals[at], genome)
-            out.append(np.full_like(f, 1e3) if final is None else final)  # infeasible: nowhere near any goal
+            out.append(np.full((len(f), 4), 1e3) if final is None else final)  # infeasible: nowhere near any goal
         return np.stack(out)
 
 

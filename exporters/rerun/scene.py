@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from babblegen.scene import SHAPES, ObjectSpec
+from babblegen.shapes import SHAPES, ObjectSpec, hull_triangles
 from babblegen.world.kinematics import ArmKinematics, Shape, UrdfModel
 
 from ..geometry import box_footprint, robot_footprint
@@ -55,13 +55,6 @@ def objects_drawn(info: dict[str, Any]) -> bool:
     return ((info.get("config") or {}).get("world") or {}).get("objects", "paper") != "paper"
 
 
-def object_spec(obj: dict[str, Any]) -> ObjectSpec:
-    """An object of a task dict (`TaskSpec.to_dict`) or a sidecar row (`ObjectSpec.factors`) as an `ObjectSpec`;
-    fields a run made before they existed take their defaults."""
-    defaults = {"mass": 1.0, "static_friction": 0.3, "dynamic_friction": 0.3, "restitution": 0.0}
-    return ObjectSpec.from_factors({**defaults, **obj}, tuple(obj.get("xy", (0.0, 0.0))))
-
-
 @dataclass(frozen=True)
 class DrawnPart:
     """One primitive of an object as Rerun draws it, in the object's frame: `entity` (under the object's entity,
@@ -83,15 +76,7 @@ def _capsule_along_x(offset: np.ndarray, half: float) -> tuple[np.ndarray, np.nd
 def hull_mesh(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The convex hull of (n, 3) points as a flat-shaded triangle mesh: (3m, 3) vertices, one per corner of each
     of its m triangles (wound outwards), their (3m, 3) face normals and the (m, 3) triangle indices."""
-    from scipy.spatial import ConvexHull
-
-    hull = ConvexHull(np.asarray(points, dtype=np.float64))
-    corners = hull.points[hull.simplices]  # (m, 3 corners, 3)
-    normal = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
-    inward = np.einsum("ij,ij->i", normal, hull.equations[:, :3]) < 0
-    corners[inward] = corners[inward][:, ::-1]
-    normal[inward] *= -1
-    normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-12)
+    corners, normal = hull_triangles(points)
     m = len(corners)
     return corners.reshape(-1, 3), np.repeat(normal, 3, axis=0), np.arange(3 * m, dtype=np.uint32).reshape(m, 3)
 
@@ -104,7 +89,7 @@ def object_parts(obj: dict[str, Any]) -> list[DrawnPart]:
 
 @functools.lru_cache(maxsize=4096)
 def _object_parts(key: str) -> tuple[DrawnPart, ...]:
-    spec = object_spec(json.loads(key))
+    spec = ObjectSpec.from_record(json.loads(key))
     color = np.array(rgba8(spec.color), dtype=np.uint8)
     out = []
     for k, part in enumerate(spec.parts()):
@@ -144,21 +129,7 @@ def part_entities() -> dict[str, str]:
 
 def bounding_half_sizes(obj: dict[str, Any]) -> np.ndarray:
     """Half extents (3,) of an object's axis-aligned bounding box in its own frame, centred on its origin."""
-    high = np.zeros(3)
-    for part in object_spec(obj).parts():
-        o, s = np.abs(np.asarray(part.offset)), np.asarray(part.size, dtype=np.float64)
-        if part.kind == "box":
-            ext = s[:3]
-        elif part.kind == "sphere":
-            ext = np.full(3, s[0])
-        elif part.kind == "cylinder":
-            ext = np.array([s[0], s[0], s[1]])
-        elif part.kind == "capsule":
-            ext = np.array([s[0] + s[1], s[0], s[0]])
-        else:
-            ext = np.abs(np.asarray(part.vertices)).max(axis=0)
-        high = np.maximum(high, o + ext)
-    return high
+    return ObjectSpec.from_record(obj).half_extents
 
 
 def robot_of(task: dict[str, Any]):
@@ -242,7 +213,7 @@ class Scene:
     footprint = staticmethod(box_footprint)
 
     def rest_position(self, obj: dict[str, Any]) -> np.ndarray:
-        return np.array([obj["xy"][0], obj["xy"][1], self.table_top + object_spec(obj).half_height])
+        return np.array([obj["xy"][0], obj["xy"][1], self.table_top + ObjectSpec.from_record(obj).half_height])
 
     def half_sizes(self, objects: list[dict[str, Any]] | None = None) -> np.ndarray:
         """(n_objects, 3) half extents of each object's bounding box, in its own frame (the task's objects, or

@@ -107,7 +107,7 @@ def simulate(world, waypoints, layout, seed: int, attempt: int, objects: list | 
     """One canonical rollout, seeded as attempt ``attempt`` of a run of seed ``seed``; ``objects``: the start's own
     (factors, `ObjectSpec.factors`), None: the task's."""
     from babblegen.evaluation import seeded_rollout
-    from babblegen.scene import ObjectSpec
+    from babblegen.shapes import ObjectSpec
     from babblegen.world.rollout import Command
 
     start = None if layout is None else np.asarray(layout, dtype=np.float64)

@@ -1,24 +1,17 @@
-"""The world model the evaluation trains: from the scene an episode starts in (every object's pose in its first
-frame) and the commanded joint trajectory, predict every object's pose in every later frame, and so where each one
-ends up.
+"""The baseline world model (`babblegen evaluate --model mlp`): per object and frame, one network over hand-made
+features of its push frame.
 
-Two learned parts, both fitted on the training episodes alone:
+- The arm's response to its commands: `ArmFilter` (babblegen/worldmodel/arm.py).
+- `StepNet`, the objects' response to the arm and to each other, one frame at a time, one network shared by every
+  object (`features`): in the object's push frame (`push_frame`: x from where the arm passes nearest to its centre),
+  the arm's nearest collision spheres where they start and end the frame, its own last motion, height, turn in the
+  frame and the table's edges, its own properties (shape one-hot, bounding box, mass, friction...:
+  `property_inputs`), and the other objects' places, last motions, sizes and masses. It predicts whether the object
+  moves this frame and, if so, by how much (x, y, yaw, z in its frame). Trained on every recorded frame with the
+  true poses (teacher forcing); `rollout` runs it from the first frame on its own predictions.
 
-- `ArmFilter`, the arm's response to its commands: per joint, a linear filter of the commanded target, the last
-  step and the target before (least squares over every training frame). The joint controller lags its targets by
-  about two frames; the filter predicts the arm's joints from the commands alone to about a millimetre at the tool.
-- `StepModel`, the objects' response to the arm and to each other, one frame at a time, one network shared by
-  every object (`features`): in the object's push frame (`push_frame`: from where the arm passes nearest to its
-  centre; `object_frame`, its own yaw modulo its symmetry, is the model before it, `TrainSettings.frame`), the arm's
-  nearest collision spheres where they start and end the frame, its own last motion, height and the table's
-  edges, its own properties (shape, size, mass, friction...: `property_inputs`), and the other objects' places,
-  last motions, sizes and masses. It predicts whether the object moves this frame and, if so, by how much (x, y,
-  yaw, z in its frame). Trained on every recorded frame with the true poses (teacher
-  forcing); `rollout` runs it from the first frame on its own predictions, a frame at a time.
-
-What is learned for one object at one place holds for every object and place: that is what lets data from many
-starts predict starts it never saw, and data of many pushes predict where a push ends. The objects' properties are
-inputs, per episode (`EpisodeSet.objects`), so that data of many objects can predict objects it never saw.
+It reads an object as a bounding box and a property vector, so it cannot tell an ell from a block of the same
+extent; the graph network (babblegen/worldmodel/simulator.py), the default, reads the objects' surfaces.
 """
 
 from __future__ import annotations
@@ -29,17 +22,9 @@ import numpy as np
 import torch
 from torch import nn
 
-from babblegen.worldmodel.episodes import (
-    MOVED,
-    OUTLINE_RAYS,
-    PROPERTIES,
-    PROPERTY,
-    SUMMARY,
-    EpisodeSet,
-    EvaluationError,
-    Scene,
-    yaw_of,
-)
+from babblegen.worldmodel.arm import ArmFilter, ArmSpheres
+from babblegen.worldmodel.episodes import MOVED, PROPERTIES, PROPERTY, SUMMARY, EpisodeSet, EvaluationError, Scene
+from babblegen.worldmodel.poses import as_poses, object_state, wrap
 
 NEAREST = 8  # arm spheres per object and frame the network sees (the nearest to it over the frame's motion)
 POS, VEL = 10.0, 100.0  # positions in decimetres, motions per frame in centimetres: inputs near unit scale
@@ -60,79 +45,6 @@ LENGTHS = ("footprint_radius", "half_height", "half_extent_x", "half_extent_y", 
 LOGS = {"volume": 1e-3, "mass": 1.0, "density": 1e3}  # inputs as log10 of the value in these units (litres, ...)
 
 
-def wrap(angle: np.ndarray, period: float | np.ndarray = 2 * np.pi) -> np.ndarray:
-    """Angles to [-period / 2, period / 2)."""
-    period = np.asarray(period, dtype=np.float64)
-    safe = np.where(period > 0, period, 2 * np.pi)
-    return (angle + safe / 2) % safe - safe / 2
-
-
-class ArmFilter:
-    """Per joint j: ``s[t+1] - s[t] = c0 (a[t] - s[t]) + c1 (s[t] - s[t-1]) + c2 (a[t-1] - s[t])``, where ``a`` is
-    the commanded target and ``s`` the joint; fitted by least squares, run from the first frame's joints."""
-
-    def __init__(self, coef: np.ndarray):
-        self.coef = np.asarray(coef, dtype=np.float64)  # (7, 3)
-
-    @staticmethod
-    def _terms(a: np.ndarray, s: np.ndarray, s_prev: np.ndarray, a_prev: np.ndarray) -> np.ndarray:
-        return np.stack([a - s, s - s_prev, a_prev - s], axis=-1)
-
-    @classmethod
-    def fit(cls, actions: list[np.ndarray], states: list[np.ndarray]) -> ArmFilter:
-        terms, steps = [], []
-        for a, s in zip(actions, states, strict=True):
-            s_prev = np.vstack([s[:1], s[:-2]])
-            a_prev = np.vstack([s[:1], a[:-2]])
-            terms.append(cls._terms(a[:-1], s[:-1], s_prev, a_prev))
-            steps.append(s[1:] - s[:-1])
-        x, y = np.concatenate(terms), np.concatenate(steps)
-        return cls(np.stack([np.linalg.lstsq(x[:, j], y[:, j], rcond=None)[0] for j in range(x.shape[1])]))
-
-    def run(self, actions: np.ndarray, first: np.ndarray) -> np.ndarray:
-        """(T, 7) predicted joints for commands (T, 7), starting at ``first``."""
-        out = np.empty_like(actions)
-        out[0] = s_prev = a_prev = first
-        for t in range(len(actions) - 1):
-            s = out[t]
-            out[t + 1] = s + np.einsum("jk,jk->j", self._terms(actions[t], s, s_prev, a_prev), self.coef)
-            s_prev, a_prev = s, actions[t]
-        return out
-
-
-class ArmSpheres:
-    """The arm's collision spheres (the planner's model of its links) for joint configurations."""
-
-    def __init__(self, robot_uid: str):
-        from babblegen.tasks import get_robot
-        from babblegen.world.collision import SphereCollisionModel
-        from babblegen.world.kinematics import ArmKinematics, UrdfModel
-
-        robot = get_robot(robot_uid)
-        self.model = SphereCollisionModel(
-            ArmKinematics(UrdfModel.load(robot.urdf), robot.base_link, robot.tool_link), []
-        )
-        self.radii = self.model.radii
-
-    def __call__(self, q: np.ndarray) -> np.ndarray:
-        """(T, S, 3) sphere centres, world frame."""
-        return self.model.sphere_centres(np.asarray(q, dtype=np.float64))
-
-
-@dataclass
-class Frames:
-    """A frame-by-frame picture of episodes: per episode the arm's spheres at every frame (T, S, 3), and the
-    objects' state (T, K, 4: x, y, z, yaw) where known."""
-
-    spheres: list[np.ndarray]
-    state: list[np.ndarray] | None
-
-
-def object_state(poses: np.ndarray) -> np.ndarray:
-    """(..., K, 4) x, y, z, yaw of (..., K, 7) poses."""
-    return np.concatenate([poses[..., :3], yaw_of(poses[..., 3:])[..., None]], axis=-1)
-
-
 def property_inputs(objects: np.ndarray) -> np.ndarray:
     """(..., P) `object_vector`s as the step network reads them, near unit scale: the shape one-hot as is, lengths
     in decimetres, volume, mass and density as log10 (of litres, kg, tonnes / m^3), frictions and restitution as
@@ -143,30 +55,13 @@ def property_inputs(objects: np.ndarray) -> np.ndarray:
     for name, unit in LOGS.items():
         out[..., PROPERTY[name]] = np.log10(np.maximum(out[..., PROPERTY[name]], 1e-12) / unit)
     out[..., PROPERTY["yaw_symmetry"]] /= np.pi
-    out[..., SUMMARY:] *= POS
     return out
-
-
-def outline_at(outlines: np.ndarray, xy: np.ndarray) -> np.ndarray:
-    """(...) how far an object reaches towards each of (..., 2) points of its own frame: its (..., OUTLINE_RAYS)
-    outline read between the two rays either side of the point's direction, linearly."""
-    at = np.arctan2(xy[..., 1], xy[..., 0]) % (2 * np.pi) / (2 * np.pi) * OUTLINE_RAYS
-    low = np.floor(at).astype(int) % OUTLINE_RAYS
-    frac = at - np.floor(at)
-    r0 = np.take_along_axis(outlines, low[..., None], axis=-1)[..., 0]
-    r1 = np.take_along_axis(outlines, ((low + 1) % OUTLINE_RAYS)[..., None], axis=-1)[..., 0]
-    return (1 - frac) * r0 + frac * r1
 
 
 def scene_objects(scene: Scene, objects: np.ndarray | None, n: int) -> np.ndarray:
     """(N, K, P) the objects of N scenes: ``objects`` as given ((N, K, P), or one (K, P) for all), or the task's."""
     props = scene.properties if objects is None else np.asarray(objects, dtype=np.float64)
     return np.broadcast_to(props, (n, *props.shape[-2:]))
-
-
-def object_frame(now: np.ndarray, sym: np.ndarray) -> np.ndarray:
-    """(N, K) each object's own frame: its yaw modulo its symmetry ``sym`` (N, K), the world's for round ones."""
-    return np.where(sym > 0, wrap(now[..., 3], sym), 0.0)
 
 
 def sweep(
@@ -204,25 +99,17 @@ def features(
     before: np.ndarray,
     arm0: np.ndarray,
     arm1: np.ndarray,
-    objects: np.ndarray | None = None,
-    properties: bool = True,
-    outlines: bool = False,
-    frame_yaw: np.ndarray | None = None,
+    objects: np.ndarray | None,
+    frame_yaw: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Inputs of the step network for N scenes at one frame: ``now`` and ``before`` (N, K, 4) the objects' states
     in this frame and the one before, ``arm0`` and ``arm1`` (N, S, 3) the arm's spheres in this frame and the next,
-    ``objects`` the objects' `object_vector`s ((N, K, P); None: the task's). Returns (N, K, F), one row per object,
-    in its own frame (see the module docstring), and (N, K) how near the arm's surface passes the object's centre
-    this frame, metres. ``properties=False`` gives zeros for the property inputs (the objects' geometry still sets
-    their frames and resting heights). ``outlines``: each object also reads its outline and, per arm sphere, how far
-    the sphere passes outside it seen from above (the distance to the outline, less the sphere's radius).
-    ``frame_yaw`` (N, K): each object's frame (`push_frame`), its own turn in it an input too; None: its own yaw
-    modulo its symmetry (`object_frame`)."""
+    ``objects`` the objects' `object_vector`s ((N, K, P); None: the task's), ``frame_yaw`` (N, K) each object's
+    push frame (`push_frame`). Returns (N, K, F), one row per object, in its own push frame (see the module
+    docstring), and (N, K) how near the arm's surface passes the object's centre this frame, metres."""
     n, k = now.shape[:2]
     objects = scene_objects(scene, objects, n)
     sym = objects[..., PROPERTY["yaw_symmetry"]]  # (N, K)
-    pushed = frame_yaw is not None
-    frame_yaw = object_frame(now, sym) if frame_yaw is None else frame_yaw  # (N, K): each object's frame
     cos, sin = np.cos(frame_yaw), np.sin(frame_yaw)
 
     def to_frame(v: np.ndarray) -> np.ndarray:
@@ -239,32 +126,27 @@ def features(
     closest = r0 + np.take_along_axis(along, near, axis=2)[..., None] * (r1 - r0)  # where it passes nearest
     parts = [to_frame(r0[..., :2]), r0[..., 2:], to_frame(r1[..., :2]), r1[..., 2:], radii[near][..., None]]
     parts += [to_frame(closest[..., :2]), closest[..., 2:], np.take_along_axis(gap, near, axis=2)[..., None]]
-    if outlines:
-        flat = to_frame(closest[..., :2])  # (N, K, M, 2)
-        reach = outline_at(np.broadcast_to(objects[:, :, None, SUMMARY:], (*flat.shape[:3], OUTLINE_RAYS)), flat)
-        parts.append((np.linalg.norm(flat, axis=-1) - reach - radii[near])[..., None])
     arm = np.concatenate(parts, axis=-1).reshape(n, k, -1) * POS
-    # the object itself: its last motion, its height over resting, the table's edges, its properties
+    # the object itself: its last motion, its height over resting, its turn in the frame, the table's edges, its
+    # properties
     rest = scene.top + objects[..., PROPERTY["half_height"]]  # (N, K)
     motion = now - before
     period = np.where(sym > 0, sym, 2 * np.pi)
+    order = np.where(sym > 0, 2 * np.pi / np.where(sym > 0, sym, 1.0), 0.0)
+    turn = order * (now[..., 3] - frame_yaw)  # its own turn in the push's frame, modulo its symmetry
     own = np.concatenate(
         [
             to_frame(motion[:, :, None, :2])[:, :, 0] * VEL,
             wrap(motion[..., 3:4], period[..., None]) * VEL / 10,
             motion[..., 2:3] * VEL,
             (now[..., 2:3] - rest[..., None]) * POS,
+            np.stack([np.cos(turn), np.sin(turn)], axis=-1) * (sym > 0)[..., None],
         ],
         axis=-1,
     )
-    if pushed:  # the object's own turn in the push's frame, modulo its symmetry (none for round objects)
-        order = np.where(sym > 0, 2 * np.pi / np.where(sym > 0, sym, 1.0), 0.0)
-        turn = order * (now[..., 3] - frame_yaw)
-        own = np.concatenate([own, np.stack([np.cos(turn), np.sin(turn)], axis=-1) * (sym > 0)[..., None]], axis=-1)
     x0, x1, y0, y1 = scene.table
     edges = np.stack([now[..., 0] - x0, x1 - now[..., 0], now[..., 1] - y0, y1 - now[..., 1]], axis=-1) * POS
-    props = property_inputs(objects) if properties else np.zeros(objects.shape)
-    props = props if outlines else props[..., :SUMMARY]
+    props = property_inputs(objects[..., :SUMMARY])
     # the others, in the scene's order: where each stands, its last motion and height, its size and mass, in this
     # object's frame
     rel = now[:, None, :, :2] - now[:, :, None, :2]  # (N, K, K, 2): object j relative to object i
@@ -278,26 +160,13 @@ def features(
     return np.concatenate([which, own, edges, props, pair, arm], axis=-1).astype(np.float32), nearest
 
 
-def frame_of(
-    scene: Scene, now: np.ndarray, objects: np.ndarray | None, frame_yaw: np.ndarray | None
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(N, K) each object's yaw symmetry, and the cosine and sine of its frame (``frame_yaw``; None: its own)."""
-    sym = scene_objects(scene, objects, len(now))[..., PROPERTY["yaw_symmetry"]]
-    frame_yaw = object_frame(now, sym) if frame_yaw is None else frame_yaw
-    return sym, np.cos(frame_yaw), np.sin(frame_yaw)
-
-
 def targets(
-    scene: Scene,
-    now: np.ndarray,
-    after: np.ndarray,
-    objects: np.ndarray | None = None,
-    frame_yaw: np.ndarray | None = None,
+    scene: Scene, now: np.ndarray, after: np.ndarray, objects: np.ndarray | None, frame_yaw: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
-    """What the step network learns for (N, K, 4) states in a frame and the next: the motion in the object's frame
-    (dx, dy in cm, dyaw in rad / 10, dz in cm), and whether it moves at all. ``objects``, ``frame_yaw``: as
-    `features`'."""
-    sym, cos, sin = frame_of(scene, now, objects, frame_yaw)
+    """What the step network learns for (N, K, 4) states in a frame and the next: the motion in the object's push
+    frame ``frame_yaw`` (dx, dy in cm, dyaw in rad / 10, dz in cm), and whether it moves at all."""
+    sym = scene_objects(scene, objects, len(now))[..., PROPERTY["yaw_symmetry"]]
+    cos, sin = np.cos(frame_yaw), np.sin(frame_yaw)
     d = after - now
     dyaw = np.where(sym > 0, wrap(d[..., 3], np.where(sym > 0, sym, 2 * np.pi)), 0.0)
     out = np.stack(
@@ -313,16 +182,9 @@ def targets(
     return out.astype(np.float32), moving
 
 
-def apply(
-    scene: Scene,
-    now: np.ndarray,
-    motion: np.ndarray,
-    objects: np.ndarray | None = None,
-    frame_yaw: np.ndarray | None = None,
-) -> np.ndarray:
-    """(N, K, 4) states after the step network's (N, K, 4) motions (in each object's frame). ``objects``,
-    ``frame_yaw``: as `features`'."""
-    _, cos, sin = frame_of(scene, now, objects, frame_yaw)
+def apply(now: np.ndarray, motion: np.ndarray, frame_yaw: np.ndarray) -> np.ndarray:
+    """(N, K, 4) states after the step network's (N, K, 4) motions, each in its object's push frame ``frame_yaw``."""
+    cos, sin = np.cos(frame_yaw), np.sin(frame_yaw)
     dx, dy = motion[..., 0] / VEL, motion[..., 1] / VEL
     out = now.copy()
     out[..., 0] += cos * dx - sin * dy
@@ -361,21 +223,11 @@ class TrainSettings:
     hidden: int = 256
     lr: float = 2e-3
     seed: int = 0
-    object_inputs: bool = True  # False: the objects' properties are no input (zeros), an ablation
-    outlines: bool = False  # True: the objects' outlines are inputs too, and the arm's distance to them (`features`)
-    frame: str = "push"  # each object's frame: "object" (`object_frame`) or "push" (`push_frame`)
-    bounded: bool = False  # True: rollouts clamp every input to the range the training rows span
 
 
-def training_rows(
-    episodes: EpisodeSet,
-    rng: np.random.Generator,
-    properties: bool = True,
-    outlines: bool = False,
-    frame: str = "push",
-) -> tuple[np.ndarray, ...]:
+def training_rows(episodes: EpisodeSet, rng: np.random.Generator) -> tuple[np.ndarray, ...]:
     """The step network's rows (inputs, targets, moving, weight) of every frame of every episode, with the true arm
-    and object states; ``properties`` and ``outlines``: as `features`', ``frame``: as `TrainSettings`'."""
+    and object states."""
     scene = episodes.scene
     spheres = ArmSpheres(scene.robot)
     xs, ys, ms, ws = [], [], [], []
@@ -383,12 +235,10 @@ def training_rows(
         state = object_state(poses)
         before = np.concatenate([state[:1], state[:-2]])
         balls = spheres(q)
-        yaw = push_frame(state[:-1], balls[:-1], balls[1:], spheres.radii) if frame == "push" else None
-        x, gap = features(
-            scene, spheres.radii, state[:-1], before, balls[:-1], balls[1:], objects, properties, outlines, yaw
-        )
+        yaw = push_frame(state[:-1], balls[:-1], balls[1:], spheres.radii)
+        x, gap = features(scene, spheres.radii, state[:-1], before, balls[:-1], balls[1:], objects, yaw)
         y, m = targets(scene, state[:-1], state[1:], objects, yaw)
-        _, was = targets(scene, before, state[:-1], objects)
+        _, was = targets(scene, before, state[:-1], objects, yaw)
         # quiet rows (nothing near or moving, before or now) teach little but "stays": keep one in QUIET
         busy = (gap < BUSY_GAP) | m | was | (m | was).any(axis=1, keepdims=True)
         keep = busy | (rng.random(busy.shape) < 1 / QUIET)
@@ -412,23 +262,10 @@ def step_loss(net: StepNet, x: torch.Tensor, y: torch.Tensor, m: torch.Tensor, w
 class WorldModel:
     """`ArmFilter` and `StepNet` together; `fit` on episodes, `predict` where objects end up."""
 
-    def __init__(
-        self,
-        scene: Scene,
-        arm: ArmFilter,
-        net: StepNet,
-        mean: np.ndarray,
-        std: np.ndarray,
-        object_inputs: bool = True,
-        outlines: bool = False,
-        frame: str = "push",
-        bounds: tuple[np.ndarray, np.ndarray] | None = None,
-    ):
+    kind = "mlp"
+
+    def __init__(self, scene: Scene, arm: ArmFilter, net: StepNet, mean: np.ndarray, std: np.ndarray):
         self.scene, self.arm, self.net, self.mean, self.std = scene, arm, net, mean, std
-        self.bounds = bounds  # normalised inputs' (low, high) over the training rows: rollouts clamp to them
-        self.object_inputs = object_inputs  # False: the objects' properties are no input (`TrainSettings`)
-        self.outlines = outlines  # True: the objects' outlines are inputs too (`TrainSettings`)
-        self.frame = frame  # "object" or "push" (`TrainSettings`)
         self.spheres = ArmSpheres(scene.robot)
         self.trained_steps = 0
         self.gate = 0.0  # a frame's motion is applied where the "moves" logit exceeds this
@@ -442,7 +279,7 @@ class WorldModel:
         n_val = int(len(episodes) * s.validation) if len(episodes) >= 10 else 0
         train, val = episodes.take(np.sort(order[n_val:])), episodes.take(np.sort(order[:n_val]))
         arm = ArmFilter.fit(train.actions, train.states)
-        x, y, m, w = training_rows(train, rng, s.object_inputs, s.outlines, s.frame)
+        x, y, m, w = training_rows(train, rng)
         # an input that never varies in training (a shape no training object has) teaches nothing: read as 0
         mean, std = x.mean(axis=0), x.std(axis=0)
         std = np.where(std < 1e-6, np.inf, std + 1e-3).astype(np.float32)
@@ -452,14 +289,14 @@ class WorldModel:
             return [torch.from_numpy(((xr - mean) / std).astype(np.float32))] + [torch.from_numpy(r) for r in rest]
 
         xt, yt, mt, wt = tensors((x, y, m, w.astype(np.float32)))
-        val_rows = training_rows(val, rng, s.object_inputs, s.outlines, s.frame) if n_val else None
+        val_rows = training_rows(val, rng) if n_val else None
         checks = tensors(tuple(r.astype(np.float32) for r in val_rows)) if val_rows is not None else None
         net = StepNet(x.shape[1], s.hidden)
         opt = torch.optim.AdamW(net.parameters(), lr=s.lr, weight_decay=1e-4)
         sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=s.lr, total_steps=s.steps)
         best, best_state, since, batches = np.inf, None, 0, torch.zeros(0, dtype=torch.int64)
         per_epoch = max(len(x) - len(x) % s.batch, s.batch)
-        step = 0
+        step = best_step = 0
         for step in range(1, s.steps + 1):
             at = ((step - 1) * s.batch) % per_epoch
             if at == 0:
@@ -474,15 +311,13 @@ class WorldModel:
                 with torch.no_grad():
                     value = float(step_loss(net, *checks))
                 if value < best:
-                    best, since = value, 0
+                    best, since, best_step = value, 0, step
                     best_state = {k: v.clone() for k, v in net.state_dict().items()}
-                    best_step = step
                 else:
                     since += 1
                     if since >= s.patience:
                         break
-        bounds = (xt.min(dim=0).values.numpy(), xt.max(dim=0).values.numpy()) if s.bounded else None
-        model = cls(episodes.scene, arm, net, mean, std, s.object_inputs, s.outlines, s.frame, bounds)
+        model = cls(episodes.scene, arm, net, mean, std)
         if best_state is not None:
             net.load_state_dict(best_state)
             model.trained_steps = best_step
@@ -511,10 +346,7 @@ class WorldModel:
         """(E, K, 4) every object's x, y, z, yaw in each episode's last frame, predicted from its first frame's
         poses and joints and its commanded joints."""
         return self.rollout(
-            [object_state(p[0]) for p in episodes.poses],
-            episodes.actions,
-            [s[0] for s in episodes.states],
-            objects=episodes.objects,
+            [p[0] for p in episodes.poses], episodes.actions, [s[0] for s in episodes.states], objects=episodes.objects
         )
 
     def rollout(
@@ -524,9 +356,9 @@ class WorldModel:
         joints0: list[np.ndarray],
         objects: np.ndarray | list[np.ndarray] | None = None,
     ) -> np.ndarray:
-        """Final (E, K, 4) states of episodes given their first states (K, 4), commands (T, 7), first joints, and
-        objects: per episode (K, P) `object_vector`s (``EpisodeSet.objects``; one (K, P) for all), None for the
-        task's objects (the training scene's)."""
+        """Final (E, K, 4) states of episodes given their first poses (K, 7) (or (K, 4) states), commands (T, 7),
+        first joints, and objects: per episode (K, P) `object_vector`s (``EpisodeSet.objects``; one (K, P) for
+        all), None for the task's objects (the training scene's)."""
         lengths = np.array([len(a) for a in actions])
         horizon = int(lengths.max())
         e, k = len(actions), len(first[0])
@@ -535,11 +367,8 @@ class WorldModel:
         props = scene_objects(self.scene, None if objects is None else np.asarray(objects, dtype=np.float64), e)
         if props.shape[-1] != len(PROPERTIES):
             raise EvaluationError(f"objects need {len(PROPERTIES)} properties each, got {props.shape[-1]}")
-        balls = np.zeros((e, horizon, len(self.spheres.radii), 3))
-        for i, (a, q0) in enumerate(zip(actions, joints0, strict=True)):
-            q = self.arm.run(a, q0)
-            balls[i] = self.spheres(np.vstack([q, np.repeat(q[-1:], horizon - len(q), axis=0)]))
-        now = np.stack(first)
+        balls = self.spheres.paths(self.arm, actions, joints0, horizon)
+        now = object_state(np.stack([as_poses(f) for f in first]))
         before = now.copy()
         final = now.copy()
         with torch.no_grad():
@@ -548,26 +377,13 @@ class WorldModel:
                 if not len(live):
                     break
                 arm0, arm1 = balls[live, t], balls[live, t + 1]
-                yaw = push_frame(now[live], arm0, arm1, self.spheres.radii) if self.frame == "push" else None
-                x, _ = features(
-                    self.scene,
-                    self.spheres.radii,
-                    now[live],
-                    before[live],
-                    arm0,
-                    arm1,
-                    props[live],
-                    self.object_inputs,
-                    self.outlines,
-                    yaw,
-                )
+                yaw = push_frame(now[live], arm0, arm1, self.spheres.radii)
+                x, _ = features(self.scene, self.spheres.radii, now[live], before[live], arm0, arm1, props[live], yaw)
                 z = (x.reshape(-1, x.shape[-1]) - self.mean) / self.std
-                if self.bounds is not None:
-                    z = np.clip(z, *self.bounds)
                 logit, motion = self.net(torch.from_numpy(z))
                 motion = motion.numpy().reshape(len(live), k, 4) * (logit.numpy() > self.gate).reshape(len(live), k, 1)
                 before[live] = now[live]
-                now[live] = apply(self.scene, now[live], motion, props[live], yaw)
+                now[live] = apply(now[live], motion, yaw)
                 ended = live[lengths[live] - 2 == t]
                 final[ended] = now[ended]
         final[lengths == 1] = now[lengths == 1]

@@ -1,0 +1,280 @@
+"""The graph a learned simulator reads at one frame: the objects as points on their collision surfaces
+(`babblegen.shapes.ObjectSpec.surface`), the arm as its collision spheres sweeping through the frame, and the
+table top; edges where they come near each other.
+
+Per scene and object (a node), everything is read in the object's **push frame**: centred on the object, its x
+axis pointing from where the arm's surface passes nearest this frame to the object's centre, seen from above (along
+the sphere's motion when it passes right over it). One frame for every shape and every side: a push learned from
+one side holds for all, and turning the whole scene about the vertical turns nothing the object sees but the table's
+edges.
+
+- **node**: the object's last motion (translation, rotation vector), its up axis, its height above the table, its
+  mass, frictions, restitution and volume, and the spread of its surface points (second moments);
+- **arm edges**: the ``ARM_EDGES`` nearest pairs of an arm sphere (of the ``ARM_SPHERES`` passing nearest the
+  object) and a surface point, over the segment the sphere sweeps this frame: the point and its normal, where the
+  sphere passes nearest relative to the point, the sphere's motion, radius and gap; masked beyond ``ARM_REACH``;
+- **table edges**: the object's ``TABLE_EDGES`` lowest surface points: where they are, their normals, their height
+  above the table and how far inside its edges;
+- **object edges**: per other object, the ``OBJECT_EDGES`` nearest pairs of points (among each one's
+  ``OBJECT_NEAR`` points nearest the other's centre): both points and normals, the other's motion relative to this
+  one's, its mass and friction; masked beyond ``OBJECT_REACH``.
+
+The targets are each object's rigid motion over the frame (translation of its origin and rotation vector, in its
+push frame); `apply_motion` turns predicted motions back into poses. A scene where the arm passes nowhere near an
+object and nothing moves is not a row at all (`active`): nothing in it moves.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from babblegen.worldmodel.poses import quat_conjugate, quat_from_rotvec, quat_multiply, rotate, rotvec_of, turn_z
+
+ARM_SPHERES = 6  # arm spheres per object whose sweep is searched for edges: those passing nearest its centre
+ARM_EDGES = 8  # sphere-point edges per object
+ARM_REACH = 0.04  # metres between a sphere's surface and a surface point: an edge
+TABLE_EDGES = 4  # an object's lowest surface points
+OBJECT_NEAR = 8  # points of each object (nearest the other's centre) among which object-object pairs are found
+OBJECT_EDGES = 4  # point pairs per pair of objects
+OBJECT_REACH = 0.03  # metres between two objects' surface points: an edge
+MOVING = (0.0005, 0.005)  # metres, radians in one frame: an object moving
+POS, VEL, ROT = 10.0, 100.0, 10.0  # positions in dm, motions per frame in cm, rotations in rad / 10: near unit scale
+
+NODE_FEATURES, ARM_FEATURES, TABLE_FEATURES, OBJECT_FEATURES = 19, 15, 8, 18
+
+
+@dataclass
+class Surfaces:
+    """Per scene and object: its surface points and normals in its own frame (N, K, P, 3), its bounding radius about
+    its origin (N, K), and its physical properties (N, K, 5): log10 mass (kg), static and dynamic friction,
+    restitution, log10 volume (litres)."""
+
+    points: np.ndarray
+    normals: np.ndarray
+    radius: np.ndarray
+    physics: np.ndarray
+
+    def take(self, idx: np.ndarray) -> Surfaces:
+        return Surfaces(self.points[idx], self.normals[idx], self.radius[idx], self.physics[idx])
+
+
+@dataclass
+class Graph:
+    """The inputs of N scenes of K objects at one frame (see the module docstring), float32; ``frame`` (N, K) each
+    object's push frame's yaw."""
+
+    node: np.ndarray  # (N, K, NODE_FEATURES)
+    arm: np.ndarray  # (N, K, ARM_EDGES, ARM_FEATURES)
+    arm_mask: np.ndarray  # (N, K, ARM_EDGES)
+    table: np.ndarray  # (N, K, TABLE_EDGES, TABLE_FEATURES)
+    obj: np.ndarray  # (N, K, K - 1, OBJECT_EDGES, OBJECT_FEATURES)
+    obj_mask: np.ndarray  # (N, K, K - 1, OBJECT_EDGES)
+    frame: np.ndarray  # (N, K)
+
+    def take(self, idx: np.ndarray) -> Graph:
+        return Graph(*(getattr(self, f)[idx] for f in self.__dataclass_fields__))
+
+    @staticmethod
+    def concat(parts: list[Graph]) -> Graph:
+        return Graph(*(np.concatenate([getattr(p, f) for p in parts]) for f in Graph.__dataclass_fields__))
+
+
+def others(k: int) -> np.ndarray:
+    """(K, K - 1) the other objects of each object, in the scene's order."""
+    return np.array([[j for j in range(k) if j != i] for i in range(k)], dtype=np.int64).reshape(k, k - 1)
+
+
+def motion_of(before: np.ndarray, after: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(..., 3) twice: the world-frame translation of each object's origin and its rotation vector between (..., 7)
+    poses ``before`` and ``after``."""
+    turn = quat_multiply(after[..., 3:], quat_conjugate(before[..., 3:]))
+    return after[..., :3] - before[..., :3], rotvec_of(turn)
+
+
+def moving(before: np.ndarray, after: np.ndarray) -> np.ndarray:
+    """(...) whether each object moves between (..., 7) poses (over `MOVING`)."""
+    shift, turn = motion_of(before, after)
+    return (np.linalg.norm(shift, axis=-1) > MOVING[0]) | (np.linalg.norm(turn, axis=-1) > MOVING[1])
+
+
+def _segment_gap(points: np.ndarray, a0: np.ndarray, a1: np.ndarray, radii: np.ndarray):
+    """How near spheres (centres ``a0`` -> ``a1``, ``radii``) pass points: broadcast shapes; returns (the fraction
+    of the way where each passes nearest, where its centre is then, the gap between its surface and the point)."""
+    seg = a1 - a0
+    along = np.clip(((points - a0) * seg).sum(-1) / np.maximum((seg * seg).sum(-1), 1e-12), 0.0, 1.0)
+    at = a0 + along[..., None] * seg
+    return along, at, np.linalg.norm(points - at, axis=-1) - radii
+
+
+def active(
+    poses: np.ndarray, before: np.ndarray, arm0: np.ndarray, arm1: np.ndarray, radii: np.ndarray, bound: np.ndarray
+) -> np.ndarray:
+    """(N,) whether anything can happen in each scene this frame: the arm sweeps within `ARM_REACH` of an object's
+    bounding sphere, or an object moves."""
+    _, _, gap = _segment_gap(poses[:, :, None, :3], arm0[:, None], arm1[:, None], radii)  # (N, K, S)
+    near = (gap.min(axis=-1) - bound < ARM_REACH).any(axis=1)
+    return near | moving(before, poses).any(axis=1)
+
+
+def build(
+    poses: np.ndarray,
+    before: np.ndarray,
+    arm0: np.ndarray,
+    arm1: np.ndarray,
+    radii: np.ndarray,
+    surfaces: Surfaces,
+    table: tuple[float, float, float, float],
+    top: float,
+) -> Graph:
+    """The graph of N scenes at one frame: ``poses`` and ``before`` (N, K, 7) the objects' poses now and a frame
+    before, ``arm0`` and ``arm1`` (N, S, 3) the arm's spheres now and a frame later, ``table`` its top's x0, x1, y0,
+    y1 and ``top`` its height."""
+    n, k = poses.shape[:2]
+    pos, quat = poses[..., :3], poses[..., 3:]
+    world = rotate(quat[:, :, None], surfaces.points) + pos[:, :, None]  # (N, K, P, 3)
+    normal = rotate(quat[:, :, None], surfaces.normals)
+
+    # the push frame: from where the sphere passing nearest the centre does so, to the centre
+    along, at, gap_c = _segment_gap(pos[:, :, None], arm0[:, None], arm1[:, None], radii)  # (N, K, S)
+    near = np.argsort(gap_c, axis=-1, kind="stable")[..., :ARM_SPHERES]  # (N, K, M)
+    first = near[..., 0]
+    closest = np.take_along_axis(at, first[..., None, None], axis=2)[:, :, 0]  # (N, K, 3)
+    away = (pos - closest)[..., :2]
+    sweep = (arm1 - arm0)[np.arange(n)[:, None], first][..., :2]
+    use = np.where((np.linalg.norm(away, axis=-1) > 1e-3)[..., None], away, sweep)
+    yaw = np.arctan2(use[..., 1], use[..., 0])
+
+    def framed(v: np.ndarray) -> np.ndarray:
+        """World vectors (N, K, ..., 3) in each object's push frame."""
+        return turn_z(v, -yaw.reshape(n, k, *([1] * (v.ndim - 3))))
+
+    rel = world - pos[:, :, None]  # (N, K, P, 3)
+    rel_f, normal_f = framed(rel), framed(normal)
+
+    # arm edges: the nearest (sphere, point) pairs over the spheres' sweeps
+    idx = np.arange(n)[:, None, None]
+    s0, s1, r = arm0[idx, near], arm1[idx, near], radii[near]  # (N, K, M, 3), (N, K, M)
+    t, c, gap = _segment_gap(world[:, :, None], s0[:, :, :, None], s1[:, :, :, None], r[..., None])  # (N,K,M,P)
+    flat = gap.reshape(n, k, -1)
+    pick = np.argsort(flat, axis=-1, kind="stable")[..., :ARM_EDGES]  # (N, K, EA)
+    m_of, p_of = np.divmod(pick, world.shape[2])
+    take = (np.arange(n)[:, None, None], np.arange(k)[None, :, None])
+    edge_gap = np.take_along_axis(flat, pick, axis=-1)
+    point, nrm = rel_f[take + (p_of,)], normal_f[take + (p_of,)]
+    centre = c.reshape(n, k, -1, 3)[take + (pick,)]  # the sphere's centre where it passes nearest
+    sphere_move = (s1 - s0)[take + (m_of,)]
+    arm = np.concatenate(
+        [
+            point * POS,
+            nrm,
+            framed(centre - world[take + (p_of,)]) * POS,
+            framed(sphere_move) * POS,
+            r[take + (m_of,)][..., None] * POS,
+            edge_gap[..., None] * VEL,
+            t.reshape(n, k, -1)[take + (pick,)][..., None],
+        ],
+        axis=-1,
+    )
+    arm_mask = edge_gap < ARM_REACH
+
+    # table edges: the lowest points
+    low = np.argsort(world[..., 2], axis=-1, kind="stable")[..., :TABLE_EDGES]  # (N, K, ET)
+    x0, x1, y0, y1 = table
+    wl = world[take + (low,)]
+    inside = np.minimum.reduce([wl[..., 0] - x0, x1 - wl[..., 0], wl[..., 1] - y0, y1 - wl[..., 1]])
+    table_edges = np.concatenate(
+        [rel_f[take + (low,)] * POS, normal_f[take + (low,)], (wl[..., 2:] - top) * VEL, inside[..., None] * POS],
+        axis=-1,
+    )
+
+    # the node: its last motion, up axis, height, physics, spread
+    shift, turn = motion_of(before, poses)
+    up = framed(rotate(quat, np.array([0.0, 0.0, 1.0]))[:, :, None])[:, :, 0]
+    spread = np.stack(
+        [
+            (rel_f[..., 0] ** 2).mean(-1),
+            (rel_f[..., 1] ** 2).mean(-1),
+            (rel_f[..., 0] * rel_f[..., 1]).mean(-1),
+            (rel_f[..., 2] ** 2).mean(-1),
+        ],
+        axis=-1,
+    )
+    node = np.concatenate(
+        [
+            framed(shift[:, :, None])[:, :, 0] * VEL,
+            framed(turn[:, :, None])[:, :, 0] * ROT,
+            up,
+            (pos[..., 2:] - top) * POS,
+            surfaces.physics,
+            spread * POS * POS,
+        ],
+        axis=-1,
+    )
+
+    # object edges: per other object, the nearest point pairs among each one's points nearest the other's centre
+    other = others(k)
+    if k > 1:
+        to_other = pos[:, other] - pos[:, :, None]  # (N, K, K-1, 3): the other's centre relative to this one's
+        d_mine = np.linalg.norm(rel[:, :, None] - to_other[:, :, :, None], axis=-1)  # (N, K, K-1, P)
+        mine = np.argsort(d_mine, axis=-1, kind="stable")[..., :OBJECT_NEAR]  # (N, K, K-1, Q)
+        kk = np.arange(k)[None, :, None, None]
+        nn_ = np.arange(n)[:, None, None, None]
+        jj = other[None, :, :, None]
+        # the other's points nearest this object's centre: row (j, position of k among j's others)
+        slot = np.array([[list(other[j]).index(i) for j in other[i]] for i in range(k)]).reshape(k, k - 1)
+        their_pts = mine[np.arange(n)[:, None, None], other[None], slot[None]]  # (N, K, K-1, Q): j's points
+        a_w = world[nn_, kk, mine]  # (N, K, K-1, Q, 3)
+        b_w = world[nn_, jj, their_pts]
+        dist = np.linalg.norm(a_w[..., :, None, :] - b_w[..., None, :, :], axis=-1)  # (N, K, K-1, Q, Q)
+        q = dist.shape[-1]
+        pick = np.argsort(dist.reshape(n, k, k - 1, -1), axis=-1, kind="stable")[..., :OBJECT_EDGES]
+        ia, ib = np.divmod(pick, q)
+        pa = np.take_along_axis(mine, ia, axis=-1)  # (N, K, K-1, EO) indices into k's points
+        pb = np.take_along_axis(their_pts, ib, axis=-1)
+        d = np.take_along_axis(dist.reshape(n, k, k - 1, -1), pick, axis=-1)
+        a_rel = rel_f[nn_, kk, pa]
+        a_n = normal_f[nn_, kk, pa]
+        b_world = world[nn_, jj, pb]
+        b_n = normal[nn_, jj, pb]
+        yaw_e = yaw[:, :, None, None]
+        gap_v = turn_z(b_world - world[nn_, kk, pa], -yaw_e)
+        rel_shift = turn_z((shift[:, other] - shift[:, :, None])[:, :, :, None], -yaw_e)
+        obj = np.concatenate(
+            [
+                a_rel * POS,
+                a_n,
+                gap_v * VEL,
+                turn_z(b_n, -yaw_e),
+                np.broadcast_to(rel_shift, (*pa.shape, 3)) * VEL,
+                d[..., None] * VEL,
+                np.broadcast_to(surfaces.physics[:, other][:, :, :, None, :2], (*pa.shape, 2)),
+            ],
+            axis=-1,
+        )
+        obj_mask = d < OBJECT_REACH
+    else:
+        obj = np.zeros((n, k, 0, OBJECT_EDGES, OBJECT_FEATURES))
+        obj_mask = np.zeros((n, k, 0, OBJECT_EDGES), dtype=bool)
+    f32 = np.float32
+    return Graph(node.astype(f32), arm.astype(f32), arm_mask, table_edges.astype(f32), obj.astype(f32), obj_mask, yaw)
+
+
+def targets(before: np.ndarray, after: np.ndarray, frame: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """What a learned simulator predicts of (N, K, 7) poses one frame apart: each object's motion in its push frame
+    ``frame`` (N, K), (N, K, 6) translation in cm and rotation vector in rad / 10; and whether it moves."""
+    shift, turn = motion_of(before, after)
+    out = np.concatenate([turn_z(shift, -frame) * VEL, turn_z(turn, -frame) * ROT], axis=-1)
+    return out.astype(np.float32), moving(before, after)
+
+
+def apply_motion(poses: np.ndarray, motion: np.ndarray, frame: np.ndarray) -> np.ndarray:
+    """(N, K, 7) poses after (N, K, 6) motions (`targets`' units), each in its object's push frame ``frame``."""
+    shift = turn_z(motion[..., :3] / VEL, frame)
+    turn = turn_z(motion[..., 3:] / ROT, frame)
+    out = poses.copy()
+    out[..., :3] += shift
+    q = quat_multiply(quat_from_rotvec(turn), poses[..., 3:])
+    out[..., 3:] = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    return out
