@@ -35,13 +35,14 @@ class ArmFilter:
         return cls(np.stack([np.linalg.lstsq(x[:, j], y[:, j], rcond=None)[0] for j in range(x.shape[1])]))
 
     def run(self, actions: np.ndarray, first: np.ndarray) -> np.ndarray:
-        """(T, 7) predicted joints for commands (T, 7), starting at ``first``."""
+        """(..., T, 7) predicted joints for commands (..., T, 7), starting at ``first`` (..., 7)."""
+        actions = np.asarray(actions, dtype=np.float64)
         out = np.empty_like(actions)
-        out[0] = s_prev = a_prev = first
-        for t in range(len(actions) - 1):
-            s = out[t]
-            out[t + 1] = s + np.einsum("jk,jk->j", self._terms(actions[t], s, s_prev, a_prev), self.coef)
-            s_prev, a_prev = s, actions[t]
+        out[..., 0, :] = s_prev = a_prev = first
+        for t in range(actions.shape[-2] - 1):
+            s = out[..., t, :]
+            out[..., t + 1, :] = s + (self._terms(actions[..., t, :], s, s_prev, a_prev) * self.coef).sum(-1)
+            s_prev, a_prev = s, actions[..., t, :]
         return out
 
 
@@ -62,8 +63,8 @@ class ArmSpheres:
     def paths(self, arm: ArmFilter, actions: list[np.ndarray], joints0: list[np.ndarray], horizon: int) -> np.ndarray:
         """(E, horizon, S, 3) the spheres along each episode's predicted joints (held at the last frame's beyond
         its end)."""
-        out = np.zeros((len(actions), horizon, len(self.radii), 3))
-        for i, (a, q0) in enumerate(zip(actions, joints0, strict=True)):
-            q = arm.run(a, q0)
-            out[i] = self(np.vstack([q, np.repeat(q[-1:], horizon - len(q), axis=0)]))
-        return out
+        padded = np.stack([np.vstack([a, np.repeat(a[-1:], horizon - len(a), axis=0)]) for a in actions])
+        q = arm.run(padded, np.stack(joints0))  # (E, horizon, 7)
+        for i, a in enumerate(actions):  # held at the last frame's joints beyond the episode's end
+            q[i, len(a) :] = q[i, len(a) - 1]
+        return self(q.reshape(-1, q.shape[-1])).reshape(len(actions), horizon, len(self.radii), 3)

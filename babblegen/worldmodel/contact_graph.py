@@ -14,7 +14,7 @@ edges.
   object) and a surface point, over the segment the sphere sweeps this frame: the point and its normal, where the
   sphere passes nearest relative to the point, the sphere's motion, radius and gap; masked beyond ``ARM_REACH``;
 - **table edges**: the object's ``TABLE_EDGES`` lowest surface points: where they are, their normals, their height
-  above the table and how far inside its edges;
+  above the table and how far inside its edges (up to ``EDGE_NEAR``: an edge farther away reads the same);
 - **object edges**: per other object, the ``OBJECT_EDGES`` nearest pairs of points (among each one's
   ``OBJECT_NEAR`` points nearest the other's centre): both points and normals, the other's motion relative to this
   one's, its mass and friction; masked beyond ``OBJECT_REACH``.
@@ -39,6 +39,7 @@ TABLE_EDGES = 4  # an object's lowest surface points
 OBJECT_NEAR = 8  # points of each object (nearest the other's centre) among which object-object pairs are found
 OBJECT_EDGES = 4  # point pairs per pair of objects
 OBJECT_REACH = 0.03  # metres between two objects' surface points: an edge
+EDGE_NEAR = 0.1  # metres inside the table's edges: beyond this the edges are not an input (they read this)
 MOVING = (0.0005, 0.005)  # metres, radians in one frame: an object moving
 POS, VEL, ROT = 10.0, 100.0, 10.0  # positions in dm, motions per frame in cm, rotations in rad / 10: near unit scale
 
@@ -108,6 +109,74 @@ def _segment_gap(points: np.ndarray, a0: np.ndarray, a1: np.ndarray, radii: np.n
     return along, at, np.linalg.norm(points - at, axis=-1) - radii
 
 
+def _smallest(values: np.ndarray, count: int) -> np.ndarray:
+    """Indices of the ``count`` smallest values along the last axis (all of them when there are no more), in no
+    particular order: each node sums over its edges, whose order does not matter."""
+    if values.shape[-1] <= count:
+        return np.broadcast_to(np.arange(values.shape[-1]), values.shape).copy()
+    return np.argpartition(values, count - 1, axis=-1)[..., :count]
+
+
+def _arm_edges(world, rel_f, normal_f, s0, s1, r, yaw) -> tuple[np.ndarray, np.ndarray]:
+    """Arm edges of B objects: their surface points (B, P, 3) in the world, and relative to their centres and their
+    normals in their push frames (``yaw`` (B,)); the M candidate spheres' sweeps ``s0`` -> ``s1`` (B, M, 3) and
+    radii (B, M). Returns the `ARM_EDGES` nearest pairs' features (B, EA, ARM_FEATURES) and gaps (B, EA)."""
+    b, p = world.shape[:2]
+    t, c, gap = _segment_gap(world[:, None], s0[:, :, None], s1[:, :, None], r[..., None])  # (B, M, P)
+    flat = gap.reshape(b, -1)
+    pick = _smallest(flat, ARM_EDGES)  # (B, EA)
+    m_of, p_of = np.divmod(pick, p)
+    rows = np.arange(b)[:, None]
+    edge_gap = flat[rows, pick]
+    centre = c.reshape(b, -1, 3)[rows, pick]  # the sphere's centre where it passes nearest
+    to_frame = -yaw[:, None]
+    feats = np.concatenate(
+        [
+            rel_f[rows, p_of] * POS,
+            normal_f[rows, p_of],
+            turn_z(centre - world[rows, p_of], to_frame) * POS,
+            turn_z((s1 - s0)[rows, m_of], to_frame) * POS,
+            r[rows, m_of][..., None] * POS,
+            edge_gap[..., None] * VEL,
+            t.reshape(b, -1)[rows, pick][..., None],
+        ],
+        axis=-1,
+    )
+    return feats, edge_gap
+
+
+def _object_edges(mine, theirs, rel_f, normal_f, their_normals, rel_shift, physics, yaw):
+    """Object edges of B (object, other object) pairs: both objects' surface points in the world (B, P, 3), this
+    one's relative to its centre and its normals in its push frame (``yaw`` (B,)), the other's normals (world), the
+    other's last motion relative to this one's (B, 3) and its physics (B, 5). Returns the `OBJECT_EDGES` nearest
+    point pairs' features (B, EO, OBJECT_FEATURES) and distances (B, EO)."""
+    b = len(mine)
+    rows = np.arange(b)[:, None]
+    centre_a, centre_b = mine.mean(axis=1, keepdims=True), theirs.mean(axis=1, keepdims=True)
+    pa = _smallest(((mine - centre_b) ** 2).sum(-1), OBJECT_NEAR)  # (B, Q): this one's points facing the other
+    pb = _smallest(((theirs - centre_a) ** 2).sum(-1), OBJECT_NEAR)
+    a_w, b_w = mine[rows, pa], theirs[rows, pb]  # (B, Q, 3)
+    dist2 = ((a_w[:, :, None] - b_w[:, None]) ** 2).sum(-1).reshape(b, -1)  # (B, Q * Q)
+    pick = _smallest(dist2, OBJECT_EDGES)  # (B, EO)
+    ia, ib = np.divmod(pick, OBJECT_NEAR)
+    ea, eb = pa[rows, ia], pb[rows, ib]  # point indices
+    d = np.sqrt(dist2[rows, pick])
+    to_frame = -yaw[:, None]
+    feats = np.concatenate(
+        [
+            rel_f[rows, ea] * POS,
+            normal_f[rows, ea],
+            turn_z(theirs[rows, eb] - mine[rows, ea], to_frame) * VEL,
+            turn_z(their_normals[rows, eb], to_frame),
+            np.broadcast_to(turn_z(rel_shift[:, None], to_frame), (b, OBJECT_EDGES, 3)) * VEL,
+            d[..., None] * VEL,
+            np.broadcast_to(physics[:, None, :2], (b, OBJECT_EDGES, 2)),
+        ],
+        axis=-1,
+    )
+    return feats, d
+
+
 def active(
     poses: np.ndarray, before: np.ndarray, arm0: np.ndarray, arm1: np.ndarray, radii: np.ndarray, bound: np.ndarray
 ) -> np.ndarray:
@@ -132,14 +201,18 @@ def build(
     before, ``arm0`` and ``arm1`` (N, S, 3) the arm's spheres now and a frame later, ``table`` its top's x0, x1, y0,
     y1 and ``top`` its height."""
     n, k = poses.shape[:2]
+    f32 = np.float32
+    poses, before, arm0, arm1, radii = (np.asarray(v, dtype=f32) for v in (poses, before, arm0, arm1, radii))
+    surfaces = Surfaces(*(np.asarray(v, dtype=f32) for v in (surfaces.points, surfaces.normals, surfaces.radius,
+                                                            surfaces.physics)))  # fmt: skip
     pos, quat = poses[..., :3], poses[..., 3:]
     world = rotate(quat[:, :, None], surfaces.points) + pos[:, :, None]  # (N, K, P, 3)
     normal = rotate(quat[:, :, None], surfaces.normals)
 
     # the push frame: from where the sphere passing nearest the centre does so, to the centre
     along, at, gap_c = _segment_gap(pos[:, :, None], arm0[:, None], arm1[:, None], radii)  # (N, K, S)
-    near = np.argsort(gap_c, axis=-1, kind="stable")[..., :ARM_SPHERES]  # (N, K, M)
-    first = near[..., 0]
+    near = _smallest(gap_c, ARM_SPHERES)  # (N, K, M), in no particular order
+    first = np.argmin(gap_c, axis=-1)
     closest = np.take_along_axis(at, first[..., None, None], axis=2)[:, :, 0]  # (N, K, 3)
     away = (pos - closest)[..., :2]
     sweep = (arm1 - arm0)[np.arange(n)[:, None], first][..., :2]
@@ -153,37 +226,24 @@ def build(
     rel = world - pos[:, :, None]  # (N, K, P, 3)
     rel_f, normal_f = framed(rel), framed(normal)
 
-    # arm edges: the nearest (sphere, point) pairs over the spheres' sweeps
-    idx = np.arange(n)[:, None, None]
-    s0, s1, r = arm0[idx, near], arm1[idx, near], radii[near]  # (N, K, M, 3), (N, K, M)
-    t, c, gap = _segment_gap(world[:, :, None], s0[:, :, :, None], s1[:, :, :, None], r[..., None])  # (N,K,M,P)
-    flat = gap.reshape(n, k, -1)
-    pick = np.argsort(flat, axis=-1, kind="stable")[..., :ARM_EDGES]  # (N, K, EA)
-    m_of, p_of = np.divmod(pick, world.shape[2])
+    # arm edges: the nearest (sphere, point) pairs over the spheres' sweeps, for the objects the arm comes near
     take = (np.arange(n)[:, None, None], np.arange(k)[None, :, None])
-    edge_gap = np.take_along_axis(flat, pick, axis=-1)
-    point, nrm = rel_f[take + (p_of,)], normal_f[take + (p_of,)]
-    centre = c.reshape(n, k, -1, 3)[take + (pick,)]  # the sphere's centre where it passes nearest
-    sphere_move = (s1 - s0)[take + (m_of,)]
-    arm = np.concatenate(
-        [
-            point * POS,
-            nrm,
-            framed(centre - world[take + (p_of,)]) * POS,
-            framed(sphere_move) * POS,
-            r[take + (m_of,)][..., None] * POS,
-            edge_gap[..., None] * VEL,
-            t.reshape(n, k, -1)[take + (pick,)][..., None],
-        ],
-        axis=-1,
-    )
-    arm_mask = edge_gap < ARM_REACH
+    arm = np.zeros((n, k, ARM_EDGES, ARM_FEATURES), dtype=f32)
+    arm_mask = np.zeros((n, k, ARM_EDGES), dtype=bool)
+    rows, objs = np.nonzero(gap_c.min(axis=-1) - surfaces.radius < ARM_REACH)
+    if len(rows):
+        m = near[rows, objs]  # (B, M)
+        s0, s1 = arm0[rows[:, None], m], arm1[rows[:, None], m]  # (B, M, 3)
+        feats, gaps = _arm_edges(world[rows, objs], rel_f[rows, objs], normal_f[rows, objs], s0, s1, radii[m],
+                                 yaw[rows, objs])  # fmt: skip
+        arm[rows, objs], arm_mask[rows, objs] = feats, gaps < ARM_REACH
 
     # table edges: the lowest points
-    low = np.argsort(world[..., 2], axis=-1, kind="stable")[..., :TABLE_EDGES]  # (N, K, ET)
+    low = _smallest(world[..., 2], TABLE_EDGES)  # (N, K, ET)
     x0, x1, y0, y1 = table
     wl = world[take + (low,)]
     inside = np.minimum.reduce([wl[..., 0] - x0, x1 - wl[..., 0], wl[..., 1] - y0, y1 - wl[..., 1]])
+    inside = np.minimum(inside, EDGE_NEAR)  # farther in than this, an edge is nowhere near: read the same
     table_edges = np.concatenate(
         [rel_f[take + (low,)] * POS, normal_f[take + (low,)], (wl[..., 2:] - top) * VEL, inside[..., None] * POS],
         axis=-1,
@@ -213,52 +273,23 @@ def build(
         axis=-1,
     )
 
-    # object edges: per other object, the nearest point pairs among each one's points nearest the other's centre
+    # object edges: per other object within reach, the nearest point pairs among each one's points nearest the
+    # other's centre
     other = others(k)
+    obj = np.zeros((n, k, k - 1, OBJECT_EDGES, OBJECT_FEATURES), dtype=f32)
+    obj_mask = np.zeros((n, k, k - 1, OBJECT_EDGES), dtype=bool)
     if k > 1:
-        to_other = pos[:, other] - pos[:, :, None]  # (N, K, K-1, 3): the other's centre relative to this one's
-        d_mine = np.linalg.norm(rel[:, :, None] - to_other[:, :, :, None], axis=-1)  # (N, K, K-1, P)
-        mine = np.argsort(d_mine, axis=-1, kind="stable")[..., :OBJECT_NEAR]  # (N, K, K-1, Q)
-        kk = np.arange(k)[None, :, None, None]
-        nn_ = np.arange(n)[:, None, None, None]
-        jj = other[None, :, :, None]
-        # the other's points nearest this object's centre: row (j, position of k among j's others)
-        slot = np.array([[list(other[j]).index(i) for j in other[i]] for i in range(k)]).reshape(k, k - 1)
-        their_pts = mine[np.arange(n)[:, None, None], other[None], slot[None]]  # (N, K, K-1, Q): j's points
-        a_w = world[nn_, kk, mine]  # (N, K, K-1, Q, 3)
-        b_w = world[nn_, jj, their_pts]
-        dist = np.linalg.norm(a_w[..., :, None, :] - b_w[..., None, :, :], axis=-1)  # (N, K, K-1, Q, Q)
-        q = dist.shape[-1]
-        pick = np.argsort(dist.reshape(n, k, k - 1, -1), axis=-1, kind="stable")[..., :OBJECT_EDGES]
-        ia, ib = np.divmod(pick, q)
-        pa = np.take_along_axis(mine, ia, axis=-1)  # (N, K, K-1, EO) indices into k's points
-        pb = np.take_along_axis(their_pts, ib, axis=-1)
-        d = np.take_along_axis(dist.reshape(n, k, k - 1, -1), pick, axis=-1)
-        a_rel = rel_f[nn_, kk, pa]
-        a_n = normal_f[nn_, kk, pa]
-        b_world = world[nn_, jj, pb]
-        b_n = normal[nn_, jj, pb]
-        yaw_e = yaw[:, :, None, None]
-        gap_v = turn_z(b_world - world[nn_, kk, pa], -yaw_e)
-        rel_shift = turn_z((shift[:, other] - shift[:, :, None])[:, :, :, None], -yaw_e)
-        obj = np.concatenate(
-            [
-                a_rel * POS,
-                a_n,
-                gap_v * VEL,
-                turn_z(b_n, -yaw_e),
-                np.broadcast_to(rel_shift, (*pa.shape, 3)) * VEL,
-                d[..., None] * VEL,
-                np.broadcast_to(surfaces.physics[:, other][:, :, :, None, :2], (*pa.shape, 2)),
-            ],
-            axis=-1,
-        )
-        obj_mask = d < OBJECT_REACH
-    else:
-        obj = np.zeros((n, k, 0, OBJECT_EDGES, OBJECT_FEATURES))
-        obj_mask = np.zeros((n, k, 0, OBJECT_EDGES), dtype=bool)
-    f32 = np.float32
-    return Graph(node.astype(f32), arm.astype(f32), arm_mask, table_edges.astype(f32), obj.astype(f32), obj_mask, yaw)
+        apart = np.linalg.norm(pos[:, other] - pos[:, :, None], axis=-1)  # (N, K, K-1)
+        reach = surfaces.radius[:, :, None] + surfaces.radius[:, other] + OBJECT_REACH
+        rows, objs, slots = np.nonzero(apart < reach)
+        if len(rows):
+            js = other[objs, slots]
+            feats, d = _object_edges(
+                world[rows, objs], world[rows, js], rel_f[rows, objs], normal_f[rows, objs], normal[rows, js],
+                shift[rows, js] - shift[rows, objs], surfaces.physics[rows, js], yaw[rows, objs],
+            )  # fmt: skip
+            obj[rows, objs, slots], obj_mask[rows, objs, slots] = feats, d < OBJECT_REACH
+    return Graph(node.astype(f32), arm, arm_mask, table_edges.astype(f32), obj.astype(f32), obj_mask, yaw)
 
 
 def targets(before: np.ndarray, after: np.ndarray, frame: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -49,6 +49,7 @@ class GraphSettings:
     lr: float = 2e-3
     seed: int = 0
     threads: int = 0  # torch threads while training (0: torch's choice)
+    motion_noise: float = 0.0  # std of Gaussian noise on the objects' last motion inputs in training (cm, rad / 10)
 
 
 def surfaces(objects: np.ndarray) -> cg.Surfaces:
@@ -69,13 +70,16 @@ def surfaces(objects: np.ndarray) -> cg.Surfaces:
     return cg.Surfaces(points, normals, np.linalg.norm(points, axis=-1).max(axis=-1), physics)
 
 
-def episode_rows(episodes: EpisodeSet, spheres: ArmSpheres) -> tuple[cg.Graph, np.ndarray, np.ndarray] | None:
-    """Every active frame of every episode, with the true poses and joints: its graph, and per object its motion
-    to the next frame and whether it moves; None when no frame is active."""
+def episode_rows(
+    episodes: EpisodeSet, spheres: ArmSpheres, arm: ArmFilter
+) -> tuple[cg.Graph, np.ndarray, np.ndarray] | None:
+    """Every active frame of every episode, with the true poses and the arm where ``arm`` puts it from the commands
+    (as a rollout sees it): its graph, and per object its motion to the next frame and whether it moves; None when
+    no frame is active."""
     scene = episodes.scene
     graphs, motions, moves = [], [], []
-    for q, poses, objects in zip(episodes.states, episodes.poses, episodes.objects, strict=True):
-        balls = spheres(q)
+    for a, q, poses, objects in zip(episodes.actions, episodes.states, episodes.poses, episodes.objects, strict=True):
+        balls = spheres(arm.run(a, q[0]))
         now, after = poses[:-1], poses[1:]
         before = np.concatenate([poses[:1], poses[:-2]])
         surf = surfaces(np.broadcast_to(objects, (len(now), *objects.shape)))
@@ -132,15 +136,16 @@ class LearnedSimulator:
         train, val = episodes.take(np.sort(order[n_val:])), episodes.take(np.sort(order[:n_val]))
         spheres = ArmSpheres(episodes.scene.robot)
         net = GraphNet(s.members, len(episodes.scene.objects), s.hidden)
-        rows = episode_rows(train, spheres)
+        arm = ArmFilter.fit(train.actions, train.states)
+        rows = episode_rows(train, spheres, arm)
         if rows is None:  # the arm came near no object: nothing moves, as far as this model knows
-            model = cls(episodes.scene, ArmFilter.fit(train.actions, train.states), net.eval(), s)
+            model = cls(episodes.scene, arm, net.eval(), s)
             model.gate, model.train_seconds = np.inf, time.perf_counter() - started
             return model
         graph, motion, moves = rows
         net.scale.fit(graph)
         x, y, mv = tensors(graph), torch.from_numpy(motion), torch.from_numpy(moves.astype(np.float32))
-        checks = episode_rows(val, spheres) if n_val else None
+        checks = episode_rows(val, spheres, arm) if n_val else None
         if checks is not None:
             vg, vy, vm = checks
             checks = (tensors(vg), torch.from_numpy(vy), torch.from_numpy(vm.astype(np.float32)))
@@ -156,7 +161,11 @@ class LearnedSimulator:
             if at == 0:
                 batches = torch.from_numpy(rng.permutation(rows))
             idx = batches[at : at + s.batch]
-            loss = loss_of(net({k: v[idx] for k, v in x.items()}), y[idx], mv[idx])
+            batch = {k: v[idx] for k, v in x.items()}
+            if s.motion_noise:  # a rollout feeds on its own motion: learn from motions a little off
+                batch["node"] = batch["node"].clone()
+                batch["node"][..., :6] += s.motion_noise * torch.randn(batch["node"][..., :6].shape)
+            loss = loss_of(net(batch), y[idx], mv[idx])
             opt.zero_grad()
             loss.backward()
             opt.step()
@@ -174,7 +183,7 @@ class LearnedSimulator:
         if best_state is not None:
             net.load_state_dict(best_state)
         net.eval()
-        model = cls(episodes.scene, ArmFilter.fit(train.actions, train.states), net, s)
+        model = cls(episodes.scene, arm, net, s)
         model.trained_steps = best_step if best_state is not None else step
         if n_val:
             model.gate = model.best_gate(val)
