@@ -92,6 +92,21 @@ def register(sub) -> None:
     p.add_argument("--cem-samples", type=int, default=64, help="cem: genomes per goal and iteration [default: 64]")
     p.add_argument("--cem-iterations", type=int, default=4, help="cem: iterations [default: 4]")
     p.add_argument(
+        "--cem-disagreement",
+        type=float,
+        default=0.0,
+        metavar="W",
+        help="cem, graph: metres of cost per centimetre of the ensemble members' disagreement on the goal object "
+        "[default: 0]",
+    )
+    p.add_argument(
+        "--ceiling-goals",
+        type=int,
+        default=40,
+        help="cem: goals also searched with the true simulator as the model, the ceiling every model is measured "
+        "against (each goal about 256 simulated movements; kept in OUT/ceiling_TEST.json); 0: none [default: 40]",
+    )
+    p.add_argument(
         "--model",
         choices=("graph", "mlp"),
         default="graph",
@@ -125,6 +140,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     from babblegen.worldmodel.episodes import EpisodeSet, read_dataset
     from babblegen.worldmodel.experiment import Source, check_apart, run_experiment
     from babblegen.worldmodel.planning import PlanningSettings, build_task
+    from babblegen.worldmodel.planning_oracle import measured_ceiling
     from babblegen.worldmodel.report import write
     from babblegen.worldmodel.simulator import GraphSettings
 
@@ -143,6 +159,8 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         raise EvaluationError("--plan-goals must be >= 0 and --plan-candidates >= 2")
     if args.cem_samples < 2 or args.cem_iterations < 1:
         raise EvaluationError("--cem-samples must be >= 2 and --cem-iterations >= 1")
+    if args.ceiling_goals < 0 or args.cem_disagreement < 0:
+        raise EvaluationError("--ceiling-goals and --cem-disagreement must be >= 0")
     workers = args.workers or os.cpu_count() or 1
     if workers < 1:
         raise EvaluationError(f"--workers must be at least 1, got {workers}")
@@ -173,12 +191,18 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         cem_samples=args.cem_samples,
         cem_iterations=args.cem_iterations,
         cem_elites=max(2, args.cem_samples // 6),
+        cem_disagreement=args.cem_disagreement,
+        ceiling_goals=args.ceiling_goals,
     )
-    plan = None
+    plan, ceiling = None, None
     if args.plan_goals:
         plan = build_task(tests[plan_test], plan_settings, workers, args.out / f"planning_{plan_test}.npz")
         if plan is None:
             print(f"planning: {plan_test} holds no goal (no episode moved an object 5 cm onto the table): skipped")
+        elif args.ceiling_goals and args.planner == "cem":
+            key = plan_settings.key(tests[plan_test])
+            cache = args.out / f"ceiling_{plan_test}.json"
+            ceiling = measured_ceiling(plan, plan_settings, args.ceiling_goals, workers, cache, key)
     steps = {} if args.steps is None else {"steps": args.steps}
     if args.model == "graph":
         members = {} if args.members is None else {"members": args.members}
@@ -209,7 +233,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 
     result = run_experiment(
         sources, tests, args.attempts or [None], modes, train, plan, plan_settings, workers, echo=print,
-        progress=finish, save=args.save_models,
+        progress=finish, save=args.save_models, ceiling=ceiling,
     )  # fmt: skip
     written = finish(result)
     print(f"done in {time.perf_counter() - started:.0f} s: " + ", ".join(str(p) for p in written))

@@ -132,6 +132,7 @@ def run_experiment(
     echo=print,
     progress=None,
     save: Path | None = None,
+    ceiling: dict | None = None,
 ) -> dict:
     """Every (budget, equal mode): per source, the episodes trained on and the scores of each repeat;
     ``progress``, if given, is called with the result so far after each model (a long evaluation keeps what it
@@ -162,6 +163,8 @@ def run_experiment(
             "strata": {s: int(mask.sum()) for s, mask in plan.strata.items()},
             "baselines": baseline_scores(plan, plan_settings.success_cm),
         }
+        if ceiling is not None:
+            out["planning"]["ceiling"] = ceiling
     echo(f"training {len(jobs)} models on {workers} worker(s)")
     context = get_context("spawn")
     with ProcessPoolExecutor(
@@ -172,7 +175,7 @@ def run_experiment(
             result = future.result()
             blocks[b]["sources"].setdefault(result["source"], []).append(result)
             if plan is not None:
-                blocks[b]["planning"] = pooled_planning(blocks[b]["sources"], plan)
+                blocks[b]["planning"] = pooled_planning(blocks[b]["sources"], plan, ceiling)
             echo(f"  [{done}/{len(jobs)}] {_describe(blocks[b], result)}")
             out["models"] = {"done": done, "total": len(jobs)}
             if progress is not None:
@@ -180,9 +183,10 @@ def run_experiment(
     return out
 
 
-def pooled_planning(sources: dict[str, list[dict]], plan: PlanningTask) -> dict:
+def pooled_planning(sources: dict[str, list[dict]], plan: PlanningTask, ceiling: dict | None = None) -> dict:
     """Per source, its planning success pooled over the repeats trained so far: per goal the mean over repeats,
-    then the mean over goals with a 95 % bootstrap interval over goals, overall and per goal stratum."""
+    then the mean over goals with a 95 % bootstrap interval over goals, overall and per goal stratum; and on the
+    ceiling's goals, beside the ceiling's own success there and the share of it."""
     out = {}
     for name, results in sources.items():
         per_goal = np.mean([r["planning"]["goal_success"] for r in results], axis=0)
@@ -191,6 +195,14 @@ def pooled_planning(sources: dict[str, list[dict]], plan: PlanningTask) -> dict:
         for s, mask in plan.strata.items():
             value = float(per_goal[mask].mean()) if mask.any() else float("nan")
             entry["strata"][s] = {"model": value, "ci95": bootstrap_ci(per_goal[mask])}
+        if ceiling is not None and ceiling["goals"]:
+            mine = per_goal[ceiling["goals"]]
+            entry["on_ceiling_goals"] = {
+                "model": float(mine.mean()),
+                "ci95": bootstrap_ci(mine),
+                "ceiling": ceiling["rate"],
+                "share": float(mine.mean() / ceiling["rate"]) if ceiling["rate"] else float("nan"),
+            }
         out[name] = entry
     return out
 

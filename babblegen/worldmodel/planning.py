@@ -65,6 +65,8 @@ class PlanningSettings:
     cem_samples: int = 64
     cem_iterations: int = 4
     cem_elites: int = 10
+    cem_disagreement: float = 0.0  # metres of cost per cm of the ensemble's disagreement (`CemSettings`)
+    ceiling_goals: int = 40  # goals the search is also run on with the true simulator as its model (0: none)
 
     def __post_init__(self) -> None:
         if self.planner not in PLANNERS:
@@ -380,7 +382,12 @@ def cem_scores(model, task: PlanningTask, settings: PlanningSettings) -> dict:
     stratum, the search's wall time, and how the executed movement compares with the one the search scored."""
     from babblegen.worldmodel.planning_cem import CemSettings, cem_plan
 
-    cem = CemSettings(samples=settings.cem_samples, iterations=settings.cem_iterations, elites=settings.cem_elites)
+    cem = CemSettings(
+        samples=settings.cem_samples,
+        iterations=settings.cem_iterations,
+        elites=settings.cem_elites,
+        disagreement=settings.cem_disagreement,
+    )
     g_count = len(task.goal_object)
     genomes: list[np.ndarray | None] = [None] * g_count
     scored: list[np.ndarray | None] = [None] * g_count

@@ -37,6 +37,9 @@ class CemSettings:
     min_std: float = 0.02  # normalised workspace units: the Gaussians never narrow below this
     spare: int = 4  # predicted-nearest genomes checked for colliding segments beyond the elites
     chunk: int = 512  # model rollouts per batch
+    # metres of cost per centimetre of the ensemble's disagreement on the goal object (its members' spread, summed
+    # over the frames; a model without members has none): a plan the members disagree on is trusted less
+    disagreement: float = 0.0
 
 
 class Commander:
@@ -154,17 +157,23 @@ def predict_ends(
     joints0: list[np.ndarray],
     chunk: int,
     objects: list[np.ndarray] | None = None,
-) -> np.ndarray:
+    spread: bool = False,
+) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
     """(E, K, 4) the model's predicted final object states, in batches of ``chunk`` rollouts (sorted by length,
     so a batch runs about as long as its episodes); ``objects``: each rollout's objects (property vectors; None: the
-    task's)."""
+    task's). With ``spread``, also (E, K) its ensemble's disagreement (`LearnedSimulator.rollout`)."""
     order = np.argsort([len(a) for a in actions], kind="stable")
     out = np.zeros((len(actions), len(first[0]), 4))
+    disagree = np.zeros((len(actions), len(first[0])))
     for at in range(0, len(order), chunk):
         idx = order[at : at + chunk]
         drawn = {} if objects is None else {"objects": [objects[i] for i in idx]}
-        out[idx] = model.rollout([first[i] for i in idx], [actions[i] for i in idx], [joints0[i] for i in idx], **drawn)
-    return out
+        args = ([first[i] for i in idx], [actions[i] for i in idx], [joints0[i] for i in idx])
+        if spread:
+            out[idx], disagree[idx] = model.rollout(*args, **drawn, spread=True)
+        else:
+            out[idx] = model.rollout(*args, **drawn)
+    return (out, disagree) if spread else out
 
 
 @dataclass
@@ -210,6 +219,7 @@ def cem_plan(
         if live:
             owner = np.array(live) // cem.samples
             drawn = None if objects is None else [objects[g] for g in owner]
+            spread = cem.disagreement > 0 and getattr(model, "kind", "") == "graph"
             pred = predict_ends(
                 model,
                 [first[g] for g in owner],
@@ -217,8 +227,14 @@ def cem_plan(
                 [joints0[g] for g in owner],
                 cem.chunk,
                 drawn,
+                spread,
             )
-            cost[live] = np.linalg.norm(pred[np.arange(len(live)), goal_object[owner], :2] - goal_xy[owner], axis=-1)
+            if spread:
+                pred, disagree = pred
+            at_goal = pred[np.arange(len(live)), goal_object[owner], :2]
+            cost[live] = np.linalg.norm(at_goal - goal_xy[owner], axis=-1)
+            if spread:
+                cost[live] += cem.disagreement * disagree[np.arange(len(live)), goal_object[owner]]
             rollouts += len(live)
         cost = cost.reshape(g_count, cem.samples)
         # the nearest predicted of each goal, checked for straight segments that collide (whose execution would

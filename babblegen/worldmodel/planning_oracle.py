@@ -10,7 +10,10 @@ came from (`cem_plan` scores its goals' samples in goal order, ``samples`` each)
 
 from __future__ import annotations
 
+import json
 import time
+from dataclasses import asdict
+from pathlib import Path
 
 import numpy as np
 
@@ -98,3 +101,66 @@ def simulator_search(task: PlanningTask, goals: list[int], cem: CemSettings, see
         "runs": runs,
         "seconds": time.perf_counter() - started,
     }
+
+
+def ceiling_goals(task: PlanningTask, count: int, seed: int = 0) -> list[int]:
+    """The fixed subset of a task's goals the ceiling is measured on: ``count`` of them, drawn by the planning seed
+    (all of them when there are fewer), in goal order."""
+    n = len(task.goal_object)
+    if count >= n:
+        return list(range(n))
+    return sorted(np.random.default_rng([seed, 0xCE11]).permutation(n)[:count].tolist())
+
+
+def _search_one(job: tuple[PlanningTask, int, CemSettings, int]) -> dict:
+    task, goal, cem, seed = job
+    return simulator_search(task, [goal], cem, seed)
+
+
+def ceiling(task: PlanningTask, goals: list[int], cem: CemSettings, success_cm: float, seed: int, workers: int) -> dict:
+    """The search's ceiling: CEM with the true simulator as its model on ``goals``, each choice executed, goals
+    spread over ``workers`` processes (each goal's search is its own). Per goal its success, the rate over them
+    with its 95 % bootstrap interval, the simulator runs and the seconds."""
+    from concurrent.futures import ProcessPoolExecutor
+    from multiprocessing import get_context
+
+    from babblegen.worldmodel.planning import bootstrap_ci
+
+    started = time.perf_counter()
+    jobs = [(task, g, cem, seed) for g in goals]
+    if workers <= 1:
+        parts = [_search_one(job) for job in jobs]
+    else:
+        with ProcessPoolExecutor(workers, mp_context=get_context("spawn")) as pool:
+            parts = list(pool.map(_search_one, jobs))
+    executed = np.array([p["executed_miss"][0] for p in parts], dtype=np.float64)
+    success = (np.nan_to_num(executed, nan=np.inf) <= success_cm / 100).astype(float)
+    return {
+        "goals": list(goals),
+        "goal_success": success.tolist(),
+        "rate": float(success.mean()) if len(success) else float("nan"),
+        "ci95": bootstrap_ci(success),
+        "executed_miss": [None if np.isnan(v) else float(v) for v in executed],
+        "runs": int(sum(p["runs"] for p in parts)),
+        "seconds": time.perf_counter() - started,
+    }
+
+
+def measured_ceiling(task: PlanningTask, settings, count: int, workers: int, cache: Path | None, key: str, echo=print):
+    """`ceiling` on `ceiling_goals`' ``count`` goals with the planner's search (``settings``: `PlanningSettings`),
+    read from ``cache`` when it was measured for the same goals and search, else measured and kept there."""
+    cem = CemSettings(samples=settings.cem_samples, iterations=settings.cem_iterations, elites=settings.cem_elites)
+    goals = ceiling_goals(task, count, settings.seed)
+    tag = json.dumps([key, goals, asdict(cem), settings.success_cm, settings.seed])
+    if cache is not None and cache.is_file():
+        stored = json.loads(cache.read_text())
+        if stored.get("key") == tag:
+            echo(f"planning ceiling: {len(goals)} goals read from {cache}")
+            return stored["ceiling"]
+    echo(f"planning ceiling: the search with the true simulator as its model on {len(goals)} goals ...")
+    result = ceiling(task, goals, cem, settings.success_cm, settings.seed, workers)
+    echo(f"planning ceiling: {result['rate']:.3f} of {len(goals)} goals ({result['seconds']:.0f} s)")
+    if cache is not None:
+        cache.parent.mkdir(parents=True, exist_ok=True)
+        cache.write_text(json.dumps({"key": tag, "ceiling": result}))
+    return result

@@ -72,6 +72,20 @@ def planning_table(result: dict, block: dict) -> list[str]:
             cpu = cell(_values(results, ("planning", "search_cpu_seconds")), 0)
             row += [f"{differs} / {infeasible}", f"{wall} ({cpu})"]
         rows.append(row)
+    if "ceiling" in p:
+        c = p["ceiling"]
+        n = len(c["goals"])
+        for name, pooled in block.get("planning", {}).items():
+            if "on_ceiling_goals" in pooled:
+                mine = pooled["on_ceiling_goals"]
+                label = (
+                    f"model trained on {name}, on the ceiling's {n} goals (share of the ceiling {mine['share']:.2f})"
+                )
+                rows.append([label, interval(mine["model"], mine["ci95"])] + ["-"] * (len(header) - 2))
+        rows.append(
+            [f"the true simulator as the model (ceiling, {n} goals)", interval(c["rate"], c["ci95"])]
+            + ["-"] * (len(header) - 2)
+        )
     baselines = p.get("baselines", {})
     for key, label in BASELINES.items():
         if key not in baselines:
