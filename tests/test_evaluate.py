@@ -112,6 +112,7 @@ def test_planning_records_the_planner_goals_and_intervals(small_noveb_dataset, s
     from babblegen.worldmodel.episodes import read_dataset
     from babblegen.worldmodel.experiment import Source, run_experiment
     from babblegen.worldmodel.planning import PlanningSettings, build_task
+    from babblegen.worldmodel.planning_oracle import measured_ceiling
     from babblegen.worldmodel.report import write
     from babblegen.worldmodel.simulator import GraphSettings
 
@@ -119,17 +120,15 @@ def test_planning_records_the_planner_goals_and_intervals(small_noveb_dataset, s
     settings = PlanningSettings(goals=2, candidates=2, min_move_cm=0.0, cem_samples=6, cem_iterations=2, cem_elites=2)
     task = build_task(test["held"], settings, workers=1, cache=None, echo=lambda _: None)
     sources = [Source("noveb", [read_dataset(small_noveb_dataset)])]
+    # the ceiling: the same search with the true simulator as its model, on one of the goals, kept and read again
+    key, cache = settings.key(test["held"]), tmp_path / "ceiling.json"
+    ceiling = measured_ceiling(task, settings, 1, 1, cache, key, echo=lambda _: None)
+    assert measured_ceiling(task, settings, 1, 1, cache, key, echo=lambda _: None) == ceiling
+    assert len(ceiling["goals"]) == 1 and ceiling["runs"] > 0 and 0.0 <= ceiling["rate"] <= 1.0
     result = run_experiment(
-        sources,
-        test,
-        [None],
-        ["attempts"],
-        GraphSettings(steps=30, members=2),
-        task,
-        settings,
-        1,
-        echo=lambda _: None,
-    )
+        sources, test, [None], ["attempts"], GraphSettings(steps=30, members=2), task, settings, 1,
+        echo=lambda _: None, ceiling=ceiling,
+    )  # fmt: skip
     result["settings"] = {"planning": {"success_cm": 3.0}}
     write(result, tmp_path)
     saved = json.loads((tmp_path / "evaluation.json").read_text())
@@ -141,6 +140,10 @@ def test_planning_records_the_planner_goals_and_intervals(small_noveb_dataset, s
     assert run["executed"]["differs"] == 0.0  # what was scored is what ran
     pooled = saved["blocks"][0]["planning"]["noveb"]
     assert pooled["model"] == run["model"] and pooled["ci95"] == run["ci95"]
+    assert saved["planning"]["ceiling"]["goals"] == ceiling["goals"]
+    on = pooled["on_ceiling_goals"]
+    assert on["ceiling"] == ceiling["rate"] and on["model"] == run["goal_success"][ceiling["goals"][0]]
+    assert "the true simulator as the model (ceiling, 1 goals)" in (tmp_path / "evaluation.md").read_text()
     assert saved["planning"]["baselines"]["replay"]["rate"] == 1.0
     assert "one random genome" in (tmp_path / "evaluation.md").read_text()
 
