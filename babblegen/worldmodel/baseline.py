@@ -23,7 +23,8 @@ import torch
 from torch import nn
 
 from babblegen.worldmodel.arm import ArmFilter, ArmSpheres
-from babblegen.worldmodel.episodes import MOVED, PROPERTIES, PROPERTY, SUMMARY, EpisodeSet, EvaluationError, Scene
+from babblegen.worldmodel.episodes import PROPERTIES, PROPERTY, SUMMARY, EpisodeSet, EvaluationError, Scene
+from babblegen.worldmodel.gated import GatedModel
 from babblegen.worldmodel.poses import as_poses, object_state, wrap
 
 NEAREST = 8  # arm spheres per object and frame the network sees (the nearest to it over the frame's motion)
@@ -259,7 +260,7 @@ def step_loss(net: StepNet, x: torch.Tensor, y: torch.Tensor, m: torch.Tensor, w
     return loss
 
 
-class WorldModel:
+class WorldModel(GatedModel):
     """`ArmFilter` and `StepNet` together; `fit` on episodes, `predict` where objects end up."""
 
     kind = "mlp"
@@ -325,29 +326,8 @@ class WorldModel:
             model.trained_steps = step
         net.eval()
         if n_val:
-            model.gate = model.best_gate(val)
+            model.choose_gate(val, GATES)
         return model
-
-    def best_gate(self, episodes: EpisodeSet) -> float:
-        """The "moves" threshold (a logit, among `GATES`) whose rollouts best tell which objects move (F1, the
-        displacement over `MOVED`) on ``episodes``: each model's own trade between missed and false moves."""
-        first = object_state(episodes.first)
-        truth = np.linalg.norm(episodes.final[..., :3] - episodes.first[..., :3], axis=-1) > MOVED
-        best, best_f1 = 0.0, -1.0
-        for gate in GATES:
-            self.gate = gate
-            moved = np.linalg.norm(self.predict(episodes)[..., :3] - first[..., :3], axis=-1) > MOVED
-            f1 = 2 * (moved & truth).sum() / max(moved.sum() + truth.sum(), 1)
-            if f1 > best_f1:
-                best, best_f1 = gate, f1
-        return best
-
-    def predict(self, episodes: EpisodeSet) -> np.ndarray:
-        """(E, K, 4) every object's x, y, z, yaw in each episode's last frame, predicted from its first frame's
-        poses and joints and its commanded joints."""
-        return self.rollout(
-            [p[0] for p in episodes.poses], episodes.actions, [s[0] for s in episodes.states], objects=episodes.objects
-        )
 
     def rollout(
         self,

@@ -25,7 +25,8 @@ from torch import nn
 from babblegen.shapes import ObjectSpec
 from babblegen.worldmodel import contact_graph as cg
 from babblegen.worldmodel.arm import ArmFilter, ArmSpheres
-from babblegen.worldmodel.episodes import MOVED, PROPERTIES, PROPERTY, SUMMARY, EpisodeSet, EvaluationError, Scene
+from babblegen.worldmodel.episodes import PROPERTIES, PROPERTY, SUMMARY, EpisodeSet, EvaluationError, Scene
+from babblegen.worldmodel.gated import GatedModel
 from babblegen.worldmodel.gnn import GraphNet, tensors
 from babblegen.worldmodel.poses import as_poses, object_state
 
@@ -111,7 +112,7 @@ def loss_of(out: torch.Tensor, motion: torch.Tensor, moves: torch.Tensor) -> tor
     return loss.sum()
 
 
-class LearnedSimulator:
+class LearnedSimulator(GatedModel):
     """The ensemble and the arm filter; `fit` on episodes, `predict` where objects end up, `rollout` any movement."""
 
     kind = "graph"
@@ -186,31 +187,9 @@ class LearnedSimulator:
         model = cls(episodes.scene, arm, net, s)
         model.trained_steps = best_step if best_state is not None else step
         if n_val:
-            model.gate = model.best_gate(val)
+            model.choose_gate(val, GATES)
         model.train_seconds = time.perf_counter() - started
         return model
-
-    def best_gate(self, episodes: EpisodeSet) -> float:
-        """The "moves" threshold (a logit, among `GATES`) whose rollouts best tell which objects move (F1, the
-        displacement over `MOVED`) on ``episodes``."""
-        first = object_state(episodes.first)
-        truth = np.linalg.norm(episodes.final[..., :3] - episodes.first[..., :3], axis=-1) > MOVED
-        best, best_f1 = 0.0, -1.0
-        for gate in GATES:
-            self.gate = gate
-            moved = np.linalg.norm(self.predict(episodes)[..., :3] - first[..., :3], axis=-1) > MOVED
-            f1 = 2 * (moved & truth).sum() / max(moved.sum() + truth.sum(), 1)
-            if f1 > best_f1:
-                best, best_f1 = gate, f1
-        self.gate = best
-        return best
-
-    def predict(self, episodes: EpisodeSet) -> np.ndarray:
-        """(E, K, 4) every object's x, y, z, yaw in each episode's last frame, predicted from its first frame's
-        poses and joints and its commanded joints."""
-        return self.rollout(
-            [p[0] for p in episodes.poses], episodes.actions, [s[0] for s in episodes.states], objects=episodes.objects
-        )
 
     def rollout(
         self,
