@@ -437,7 +437,7 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _interrupted_at_start(out: str | None) -> str:
-    from babblegen.run import is_babblegen_dataset
+    from babblegen.dataset.paths import is_babblegen_dataset
 
     said = "babblegen: interrupted before the first attempt"
     if out is None or not Path(out).is_dir() or not any(Path(out).iterdir()):

@@ -23,13 +23,19 @@ from typing import Any
 
 import numpy as np
 
+from babblegen.assembly import arm_info, build_descriptor, build_evaluator, build_explorer, build_task
 from babblegen.config import ConfigError, RunConfig, resumed_config
-from babblegen.exporters.sidecar import attempt_row, clone_row, read_attempts, recorded_poses
+from babblegen.dataset.paths import RUN_INFO, is_babblegen_dataset, sidecar_dir
+from babblegen.dataset.sidecar import read_attempts, read_run_info
+from babblegen.descriptors import describe_rollout
+from babblegen.explorers.base import ask_while_possible
+from babblegen.exporters.sidecar import attempt_row, clone_row, recorded_poses
 from babblegen.interrupts import Interrupted, Interrupts, StartupInterrupts
 from babblegen.outputs import RunOutputs
 from babblegen.provenance import machine, versions
 from babblegen.shapes import ObjectSpec
-from babblegen.store import RUN_INFO, AttemptRecord, RunStore, atomic_write, read_run_info, sidecar_dir
+from babblegen.store import AttemptRecord, RunStore, atomic_write
+from babblegen.tasks import get_robot
 from babblegen.world.rollout import Command
 
 FORMAT_VERSION = 1  # of run.json
@@ -60,10 +66,6 @@ class RunSummary:
             f"{self.seconds:.0f} s ({rate:.2f} attempts/s)",
             f"dataset: {self.out}",
         ]
-
-
-def is_babblegen_dataset(path: Path) -> bool:
-    return (sidecar_dir(path) / RUN_INFO).is_file()
 
 
 def check_output(out: Path, resume: bool) -> None:
@@ -134,10 +136,6 @@ class Run:
 
     # --- opening --------------------------------------------------------------------------------------------
     def _build_parts(self, check_interrupt: Callable[[], None]) -> None:
-        from babblegen.assembly import build_descriptor, build_evaluator, build_explorer, build_task
-        from babblegen.evaluation import arm_info
-        from babblegen.tasks import get_robot
-
         cfg = self.config
         self.task = build_task(cfg)
         self.robot = get_robot(self.task.robot_uid)
@@ -321,8 +319,6 @@ class Run:
         timing. Generations are told in the order asked. An attempt is written once its episode is prepared
         (workers prepare episodes when they have no movement to simulate), in attempt order; at a commit point,
         every attempt told so far is."""
-        from babblegen.explorers.base import ask_while_possible
-
         limit, generations = self.config.max_attempts, self.config.noveb.generations
         open_batches = deque(self._submit(self.explorer.open_batches()))  # in flight at the commit point resumed
         if not self._finished():
@@ -373,8 +369,6 @@ class Run:
 
     def _describe(self, rollouts) -> tuple[list, list[float]]:
         """Each rollout's behaviour code (made where it ran; here for an evaluator that did not) and its seconds."""
-        from babblegen.descriptors import describe_rollout
-
         codes, seconds = [], []
         for r in rollouts:
             if r.feasible and r.code is None:

@@ -7,7 +7,9 @@ import json
 from pathlib import Path
 from typing import Any
 
-from babblegen.store import Sink, atomic_write, read_run_info
+from babblegen.dataset.lerobot import read_dataset_info
+from babblegen.dataset.sidecar import read_run_info
+from babblegen.store import Sink, atomic_write
 
 CARD = "README.md"
 LICENSE = "mit"  # babblegen's license; the data is simulated, nobody else's recording
@@ -137,7 +139,7 @@ def _camera_lines(info: dict[str, Any]) -> str:
 def write_card(root: Path, run_info: dict[str, Any], counters: dict[str, int]) -> Path:
     """Write (or refresh) ROOT/README.md from meta/info.json and the run's state."""
     root = Path(root)
-    info = json.loads((root / "meta" / "info.json").read_text())
+    info = read_dataset_info(root)
     atomic_write(root / CARD, card_text(info, run_info, counters).encode())
     return root / CARD
 

@@ -17,8 +17,8 @@ from typing import Any
 import numpy as np
 
 from babblegen.contact_events import had_object_contact
-
-from .sidecar import CLONES, read_attempts, read_run_info
+from babblegen.dataset.paths import CLONES
+from babblegen.dataset.sidecar import read_attempts, read_run_info
 
 CELL = 0.02  # metres: the grid of the spread measure
 OUTCOME_GRID = 0.01  # metres: two outcomes differ when some object's final xy falls in another 1 cm cell

@@ -8,7 +8,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from babblegen.exporters.lerobot_schema import features, image_key
+from babblegen.dataset.schema import features, image_key
 from babblegen.tasks import get_task
 from babblegen.world.cameras import task_instance_names, view_parameters
 from babblegen.world.rollout import Command

@@ -18,9 +18,9 @@ from conftest import SMALL_RUN
 
 from babblegen.cli import main
 from babblegen.config import ConfigError, RunConfig, resumed_config
+from babblegen.dataset.lerobot import load_dataset, to_uint8_image
+from babblegen.dataset.sidecar import read_attempts, read_run_info
 from babblegen.descriptors import from_hex, make_descriptor
-from babblegen.exporters.lerobot import load_dataset, to_uint8_image
-from babblegen.exporters.sidecar import read_attempts, read_run_info
 from babblegen.novelty import hamming
 
 SMALL = SMALL_RUN  # one worker: the datasets are compared with in-process runs
