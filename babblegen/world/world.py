@@ -19,9 +19,8 @@ import torch
 
 from babblegen.contact_events import contact_pairs
 from babblegen.objects import slot_task
-from babblegen.scene import TaskSpec
+from babblegen.scene import TaskSpec, layout_poses
 from babblegen.shapes import ObjectSpec
-from babblegen.starts import layout_poses
 from babblegen.world.cameras import CameraRig
 from babblegen.world.exact import row_norm
 from babblegen.world.planning import ArmPlanner, Plan
