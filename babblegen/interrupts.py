@@ -4,20 +4,28 @@ A signal raises `Interrupted` at once while the run is simulating or waiting, so
 `protected()` section (writing an episode, committing) the stop is held until the section ends, because LeRobot's
 writer runs image-writer threads and an encoder that an exception raised in the middle leaves inconsistent. A
 second signal during a protected section raises at once: the user insists. During `closing()` signals are only
-recorded, so the final commit completes.
+recorded, so the final commit completes. While an exception is being handled (an ``except`` or ``finally`` block:
+the clean-up after a stop or an error) a signal is recorded, never raised: an exception raised there would
+replace the one being handled and cut its clean-up short.
+
+`Interrupted` is a BaseException, like KeyboardInterrupt, so that library code's ``except Exception`` neither
+swallows it nor turns it into an error of its own: SAPIEN's URDF parser, which runs in every scene rebuild (in the
+run's process with one worker), re-raises whatever it catches as a ValueError, which ended a stopped run with exit
+status 1. `stopped_by` still recognises an error raised while a stop was being handled (a bare ``except:``).
 """
 
 from __future__ import annotations
 
 import signal
+import sys
 from collections.abc import Iterator
 from contextlib import contextmanager
 
 SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
 
-class Interrupted(Exception):
-    """Raised inside the loop by SIGINT / SIGTERM."""
+class Interrupted(BaseException):
+    """Raised inside the loop by SIGINT / SIGTERM (a BaseException: see the module docstring)."""
 
 
 class Interrupts:
@@ -41,7 +49,7 @@ class Interrupts:
 
     def _handle(self, signum: int, frame) -> None:
         name = signal.Signals(signum).name
-        if self._closing:
+        if self._closing or sys.exception() is not None:
             self.pending = self.pending or name
             return
         if self._depth and self.pending is None:
@@ -94,3 +102,17 @@ class StartupInterrupts:
     def check(self) -> None:
         if self.pending:
             raise KeyboardInterrupt
+
+
+def stopped_by(error: BaseException) -> bool:
+    """Whether ``error`` is a stop, or was raised while one was handled (library code that wraps what it catches)."""
+    seen, todo = set(), [error]
+    while todo:
+        e = todo.pop()
+        if e is None or id(e) in seen:
+            continue
+        if isinstance(e, Interrupted | KeyboardInterrupt):
+            return True
+        seen.add(id(e))
+        todo += [e.__cause__, e.__context__]
+    return False

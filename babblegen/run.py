@@ -30,7 +30,7 @@ from babblegen.dataset.sidecar import read_attempts, read_run_info
 from babblegen.descriptors import describe_rollout
 from babblegen.explorers.base import ask_while_possible
 from babblegen.exporters.sidecar import attempt_row, clone_row, recorded_poses
-from babblegen.interrupts import Interrupted, Interrupts, StartupInterrupts
+from babblegen.interrupts import Interrupts, StartupInterrupts, stopped_by
 from babblegen.outputs import RunOutputs
 from babblegen.provenance import machine, versions
 from babblegen.shapes import ObjectSpec
@@ -275,7 +275,9 @@ class Run:
                 self._loop(bar)
                 with self._interrupts.protected():
                     self.store.commit(self.explorer.state_dict(), self.counters, final=True)
-            except (Interrupted, KeyboardInterrupt):
+            except BaseException as e:
+                if not stopped_by(e):  # also an error a library raised in place of the stop it caught
+                    raise
                 interrupted = True
             finally:
                 with self._interrupts.closing():

@@ -67,3 +67,45 @@ def test_a_stop_dropped_by_a_destructor_is_raised_at_the_next_protected_section(
         Freed()
         with pytest.raises(Interrupted, match="SIGTERM"), stop.protected():
             pass
+
+
+def test_library_code_neither_swallows_nor_converts_a_stop():
+    """SAPIEN's URDF parser, run in every scene rebuild, re-raises what it catches as a ValueError: a stop raised
+    there ended the run with exit status 1."""
+
+    def parse_required_attribute():
+        try:
+            _term()
+            return 1.0
+        except Exception:
+            raise ValueError("Missing required attribute size when parsing an object of type Box") from None
+
+    with Interrupts(), pytest.raises(Interrupted, match="SIGTERM"):
+        parse_required_attribute()
+
+
+def test_a_signal_while_an_exception_is_handled_is_recorded_only():
+    """A raise there would replace the exception being handled and cut its clean-up short."""
+    cleaned = []
+    with Interrupts() as stop, pytest.raises(Interrupted, match="SIGINT"):
+        try:
+            os.kill(os.getpid(), signal.SIGINT)  # the stop
+        finally:
+            _term()  # a second signal during the clean-up
+            cleaned.append("the rest of the clean-up")
+    assert cleaned == ["the rest of the clean-up"] and stop.pending == "SIGINT"
+
+
+def test_an_error_raised_while_a_stop_was_handled_counts_as_the_stop():
+    from babblegen.interrupts import stopped_by
+
+    def wrapped():
+        try:
+            raise Interrupted("SIGTERM")
+        except BaseException:  # a library's bare ``except:``
+            raise RuntimeError("the library's own error") from None
+
+    with pytest.raises(RuntimeError) as caught:
+        wrapped()
+    assert stopped_by(caught.value)
+    assert not stopped_by(RuntimeError("unrelated"))
