@@ -10,6 +10,7 @@ from pathlib import Path
 
 from babblegen.config import RERUN_FRAMES, VIDEO_CODECS, ConfigError, RunConfig, default_workers, load_toml, merge
 from babblegen.explorers.noveb import NovEBConfig
+from babblegen.interrupts import Interrupted, Interrupts, installed
 from babblegen.objects import OBJECT_SETS
 from babblegen.world.settings import (
     CAMERA_PRESETS,
@@ -398,10 +399,16 @@ def cmd_generate(args: argparse.Namespace) -> int:
         _camera_overrides(args, data)
         run = Run.start(args.out, RunConfig.from_dict(data))
     summary = run.execute(progress=not args.no_progress)
+    if not summary.written:  # stopped before its dataset held an episode: nothing of this sitting is left
+        print(_interrupted_at_start(args.out), file=sys.stderr)
+        return 130
     for line in summary.lines():
         print(line)
     if summary.interrupted:
         print(f"resume with: babblegen generate --out {summary.out} --resume")
+        return 130
+    if summary.signal is not None:
+        print(f"{summary.signal} arrived as the run finished: the dataset is complete")
         return 130
     print(
         "load it with: from lerobot.datasets.lerobot_dataset import LeRobotDataset; "
@@ -420,7 +427,7 @@ def main(argv: list[str] | None = None) -> int:
     except ConfigError as e:
         print(f"babblegen: error: {e}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:  # while a run starts up (its loop handles its own interruptions)
+    except (KeyboardInterrupt, Interrupted):  # without babblegen's handlers in place (a run handles its own stops)
         print(_interrupted_at_start(getattr(args, "out", None)), file=sys.stderr)
         return 130
     except Exception as e:
@@ -439,7 +446,7 @@ def main(argv: list[str] | None = None) -> int:
 def _interrupted_at_start(out: str | None) -> str:
     from babblegen.dataset.paths import is_babblegen_dataset
 
-    said = "babblegen: interrupted before the first attempt"
+    said = "babblegen: interrupted before the first episode was written"
     if out is None or not Path(out).is_dir() or not any(Path(out).iterdir()):
         return f"{said}; nothing was written"
     if is_babblegen_dataset(Path(out)):
@@ -464,14 +471,23 @@ def _disk_full(error: BaseException | None) -> BaseException | None:
 
 def entry_point() -> None:
     """Console script: run, then leave without the interpreter's teardown, where OMPL's Python binding
-    prints spurious reference-leak warnings (everything babblegen opened is closed by then)."""
+    prints spurious reference-leak warnings (everything babblegen opened is closed by then).
+
+    `generate` takes SIGINT and SIGTERM over until the process ends (`babblegen.console` does it before this module's
+    imports), so a signal during the summary or the exit is recorded too: it makes the exit status 130."""
     import logging
     import os
 
+    stop = installed()
+    if stop is None and sys.argv[1:2] == ["generate"]:
+        stop = Interrupts(raising=False).install()
     code = main()
     logging.shutdown()
     sys.stdout.flush()
     sys.stderr.flush()
+    if code == 0 and stop is not None and stop.pending is not None:  # the last moment a signal can change it
+        print(f"{stop.pending} arrived as babblegen ended: the dataset is complete", file=sys.stderr, flush=True)
+        code = 130
     os._exit(code)
 
 

@@ -30,7 +30,7 @@ from babblegen.dataset.sidecar import read_attempts, read_run_info
 from babblegen.descriptors import describe_rollout
 from babblegen.explorers.base import ask_while_possible
 from babblegen.exporters.sidecar import attempt_row, clone_row, recorded_poses
-from babblegen.interrupts import Interrupts, StartupInterrupts, stopped_by
+from babblegen.interrupts import for_command, stopped_by
 from babblegen.outputs import RunOutputs
 from babblegen.provenance import machine, versions
 from babblegen.shapes import ObjectSpec
@@ -53,6 +53,8 @@ class RunSummary:
     interrupted: bool = False
     clones: int = 0
     resumed_at: int = 0  # attempts made before this sitting (a resumed run)
+    signal: str | None = None  # the stop received (SIGINT / SIGTERM), also when it came as the run finished
+    written: bool = True  # False: stopped before its dataset held an episode, this sitting left nothing behind
 
     def lines(self) -> list[str]:
         made = self.attempts - self.resumed_at
@@ -148,10 +150,11 @@ class Run:
         self.task_text = self.outputs.task_text
         try:  # while worker processes start (seconds), import what the sinks need here
             self.outputs.import_libraries()
-            check_interrupt()
+            check_interrupt()  # a library's bare ``except:`` may have swallowed a stop
             self.evaluator.wait_ready()
         except BaseException:
-            self.evaluator.close()
+            evaluator, self.evaluator = self.evaluator, None
+            evaluator.close()
             raise
 
     def _sinks(self, repo_id: str) -> list[tuple[str, Any]]:
@@ -159,6 +162,7 @@ class Run:
         return self.outputs.sinks(repo_id, self.counters if self.resumed else None)
 
     def _open_new(self) -> None:
+        self._fresh = True  # this sitting makes the dataset (`_discard`)
         self.store.open_sinks(self._sinks(self.repo_id)[:1])  # LeRobot creates the root directory
         self.store.write_info(
             {
@@ -253,53 +257,76 @@ class Run:
 
     # --- running --------------------------------------------------------------------------------------------
     def execute(self, progress: bool = True, echo=print) -> RunSummary:
-        """Run to completion or interruption. The dataset is finalized and loads either way."""
+        """Run to completion or to a stop (SIGINT / SIGTERM, at any moment: `babblegen.interrupts`). The dataset is
+        finalized and loads either way; a stop before it holds an episode leaves nothing behind (`_discard`)."""
         t0 = time.perf_counter()
-        if self.resumed:
-            self.store.lock.acquire(self.out)  # before anything is rolled back: another run may be writing
-        with StartupInterrupts() as starting:
-            self._build_parts(starting.check)
+        self.evaluator, self._fresh, self._opened = None, False, False
+        interrupted, bar, resumed_at = False, None, self.counters["attempts"]
+        with for_command() as stop:
+            self._interrupts = stop
             try:
-                self._open_resumed(echo) if self.resumed else self._open_new()
-                self.store.start_writer()  # commit points are written while the search goes on
-                starting.check()
-            except BaseException:
-                self.evaluator.close()
-                self.store.close()
-                raise
-        resumed_at = self.counters["attempts"]
-        interrupted = False
-        bar = self._progress_bar(progress)
-        with Interrupts() as self._interrupts:
-            try:
-                self._loop(bar)
-                with self._interrupts.protected():
-                    self.store.commit(self.explorer.state_dict(), self.counters, final=True)
+                with stop.raising():
+                    if self.resumed:
+                        self.store.lock.acquire(self.out)  # before anything is rolled back: another run may write
+                    self._build_parts(stop.check)
+                    with stop.protected():  # a dataset is opened whole or not at all
+                        self._open_resumed(echo) if self.resumed else self._open_new()
+                        self.store.start_writer()  # commit points are written while the search goes on
+                        self._opened, resumed_at = True, self.counters["attempts"]
+                    bar = self._progress_bar(progress)
+                    self._loop(bar)
+                    with stop.protected():
+                        self.store.commit(self.explorer.state_dict(), self.counters, final=True)
+                        stop.record_only()  # finished: a signal from now on is recorded only
             except BaseException as e:
-                if not stopped_by(e):  # also an error a library raised in place of the stop it caught
+                if not stopped_by(e) and stop.pending is None:
                     raise
                 interrupted = True
+                if not stopped_by(e):  # raised as a signal arrived, by whatever the signal cut short
+                    print(f"babblegen: warning: stopping on {stop.pending}: {type(e).__name__}: {e}", file=sys.stderr)
             finally:
-                with self._interrupts.closing():
-                    if bar is not None:
-                        bar.close()
-                    try:
-                        self.store.close()
-                    finally:  # also when closing the store fails (a full disk): the workers are stopped
-                        self.evaluator.close()
+                with stop.closing():
+                    self._close(bar)
+            written = self._opened
+            if interrupted and self._fresh and self.counters["executed"] == 0:
+                self._discard()
+                written = False
         c = self.counters
         return RunSummary(
             self.out,
             c["attempts"],
             c["executed"],
             c["contacts"],
-            self.explorer.archive_size,
+            self.explorer.archive_size if written else 0,
             c["generations"],
             time.perf_counter() - t0,
             interrupted,
             c["clones"],
             resumed_at,
+            stop.pending,
+            written,
         )
+
+    def _close(self, bar) -> None:
+        if bar is not None:
+            bar.close()
+        try:
+            self.store.close()
+        finally:  # also when closing the store fails (a full disk): the workers are stopped
+            if self.evaluator is not None:
+                self.evaluator.close()
+
+    def _discard(self) -> None:
+        """A stop before the dataset this sitting made held an episode (LeRobot loads no dataset of none): nothing of
+        it is kept. A new run's directory is left empty, as it was found; a resumed run that had started afresh keeps
+        its run.json alone, which --resume starts again."""
+        info = self.store.dir / RUN_INFO
+        kept = info.read_bytes() if self.resumed and info.exists() else None
+        for p in self.out.iterdir() if self.out.is_dir() else []:
+            shutil.rmtree(p) if p.is_dir() else p.unlink()
+        if kept is not None:
+            self.store.dir.mkdir(parents=True, exist_ok=True)
+            atomic_write(info, kept)
 
     def _finished(self) -> bool:
         """The stopping rule: all generations told, or ``max_attempts`` movements attempted. Clones (children

@@ -178,6 +178,19 @@ def test_resume_of_a_run_that_stopped_while_starting_says_to_run_it_without_resu
     assert list(out.iterdir()) == []
 
 
+def test_a_stop_during_the_console_scripts_imports_ends_the_run_before_it_writes_anything(tmp_path, capsys):
+    """The console script records a signal from its first line on (`babblegen.console`); the run then stops as
+    soon as it starts, before any part of it is built."""
+    from babblegen.interrupts import Interrupts
+
+    out = tmp_path / "never"
+    with Interrupts(raising=False):
+        os.kill(os.getpid(), signal.SIGTERM)
+        assert main(["generate", "--out", str(out), *SMALL]) == 130
+    assert "interrupted before the first episode was written; nothing was written" in capsys.readouterr().err
+    assert list(out.iterdir()) == []
+
+
 @pytest.mark.parametrize(
     ("flags", "message"),
     [
@@ -576,8 +589,10 @@ def test_a_run_stored_by_the_generational_version_resumes_as_the_same_search():
 
 
 @pytest.mark.sim
-def test_ctrl_c_while_a_run_starts_exits_130_with_one_line(tmp_path):
-    """Ctrl-C during the seconds of start-up (imports, workers warming up) stops at once, without a traceback."""
+@pytest.mark.parametrize("group", [True, False], ids=["ctrl-c to the group", "sigterm to the run"])
+def test_a_stop_while_a_run_starts_exits_130_with_one_line_and_writes_nothing(tmp_path, group):
+    """Ctrl-C (SIGINT to the process group) or SIGTERM during the seconds of start-up (imports, workers warming
+    up) stops at once, without a traceback; SIGTERM used to kill the run there (no handler yet)."""
     out = tmp_path / "early"
     cmd = [sys.executable, "-m", "babblegen.cli", "generate", "--out", str(out), *SMALL]
     cmd[cmd.index("--workers") + 1] = "2"
@@ -587,14 +602,30 @@ def test_ctrl_c_while_a_run_starts_exits_130_with_one_line(tmp_path):
         assert proc.poll() is None
         time.sleep(0.05)
     time.sleep(0.5)  # they are importing their libraries (seconds), where a Ctrl-C printed tracebacks
-    os.killpg(proc.pid, signal.SIGINT)
+    os.killpg(proc.pid, signal.SIGINT) if group else proc.send_signal(signal.SIGTERM)
     started = time.monotonic()
     code = proc.wait(timeout=60)
     printed = proc.stdout.read().decode()
     assert code == 130, printed
     assert time.monotonic() - started < 10  # workers still warming up are not waited for
     assert "Traceback" not in printed and "leaked" not in printed, printed
-    assert "babblegen: interrupted before the first attempt" in printed
+    assert "babblegen: interrupted before the first episode was written; nothing was written" in printed, printed
+    assert list(out.iterdir()) == []
+
+
+@pytest.mark.sim
+def test_a_stop_after_the_dataset_opened_but_before_its_first_episode_leaves_nothing(tmp_path, capsys, monkeypatch):
+    """LeRobot loads no dataset of no episode: what the run made is removed, and the directory is left as found."""
+    from babblegen.run import Run
+
+    def stopped(self, bar):
+        assert (tmp_path / "ds" / "babblegen" / "run.json").exists() and (tmp_path / "ds" / "meta").exists()
+        os.kill(os.getpid(), signal.SIGTERM)
+
+    monkeypatch.setattr(Run, "_loop", stopped)
+    assert generate(tmp_path / "ds") == 130
+    assert "interrupted before the first episode was written; nothing was written" in capsys.readouterr().err
+    assert list((tmp_path / "ds").iterdir()) == []
 
 
 def _spawned_workers(pid: int) -> list[int]:

@@ -96,6 +96,17 @@ def test_a_signal_while_an_exception_is_handled_is_recorded_only():
     assert cleaned == ["the rest of the clean-up"] and stop.pending == "SIGINT"
 
 
+def test_a_stop_recorded_outside_raising_is_raised_on_entering_it():
+    with Interrupts(raising=False) as stop:
+        _term()  # as during the console script's imports: recorded
+        assert stop.pending == "SIGTERM"
+        with pytest.raises(Interrupted, match="SIGTERM"), stop.raising():
+            pytest.fail("not reached")
+        _term()  # after it: recorded only
+        with stop.protected():
+            pass
+
+
 def test_an_error_raised_while_a_stop_was_handled_counts_as_the_stop():
     from babblegen.interrupts import stopped_by
 
@@ -109,3 +120,19 @@ def test_an_error_raised_while_a_stop_was_handled_counts_as_the_stop():
         wrapped()
     assert stopped_by(caught.value)
     assert not stopped_by(RuntimeError("unrelated"))
+
+
+def test_a_run_from_python_gets_handlers_for_its_duration_and_the_console_scripts_are_kept():
+    from babblegen.interrupts import for_command, installed
+
+    before = signal.getsignal(signal.SIGTERM)
+    with for_command() as stop:
+        assert installed() is stop and signal.getsignal(signal.SIGTERM) is not before
+    assert installed() is None and signal.getsignal(signal.SIGTERM) is before
+    console = Interrupts(raising=False).install()
+    try:
+        with for_command() as stop:
+            assert stop is console
+        assert installed() is console, "stays until the process ends"
+    finally:
+        console.restore()
