@@ -97,13 +97,16 @@ def start_in_subprocess(task_name: str, settings: Any):
     `finish_subprocess` collects it."""
     import subprocess
 
-    child = subprocess.Popen(
-        [sys.executable, "-m", "babblegen.fingerprint"],
-        stdin=subprocess.PIPE,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
+    from babblegen.interrupts import spawning
+
+    with spawning():  # a signal to the whole process group reaches the run, which stops its children itself
+        child = subprocess.Popen(
+            [sys.executable, "-m", "babblegen.fingerprint"],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
     child.stdin.write(json.dumps({"task": task_name, "world": settings.to_dict()}))
     child.stdin.close()
     return child

@@ -9,9 +9,9 @@ Python gets one for the run's duration (`for_command`).
   on entering it.
 - Inside `raising()` (the run's start-up and its loop) a signal raises `Interrupted` at once, so a stop is prompt
   during imports, simulation and waits. Inside a `protected()` section (opening the dataset, writing an episode,
-  committing) it is held until the section ends, because LeRobot's writer runs image-writer threads and an
-  encoder that an exception raised in the middle leaves inconsistent. A second signal during a protected section
-  raises at once: the user insists.
+  committing, starting a worker process) it is held until the section ends, because LeRobot's writer runs
+  image-writer threads and an encoder that an exception raised in the middle leaves inconsistent. A second signal
+  during a protected section raises at once: the user insists.
 - Never while an exception is being handled (an ``except`` or ``finally`` block: the clean-up after a stop or an
   error): an exception raised there would replace the one being handled and cut its clean-up short. The signal is
   recorded and the clean-up goes on.
@@ -20,12 +20,15 @@ Python gets one for the run's duration (`for_command`).
 swallows it nor turns it into an error of its own: SAPIEN's URDF parser, which runs in every scene rebuild (in the
 run's process with one worker), re-raises whatever it catches as a ValueError, which ended a stopped run with exit
 status 1. `stopped_by` still recognises an error raised while a stop was being handled (a bare ``except:``).
+Worker processes never act on these signals (`spawning`): the run stops them itself.
 """
 
 from __future__ import annotations
 
+import contextlib
 import signal
 import sys
+import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
 
@@ -136,6 +139,23 @@ def for_command() -> Iterator[Interrupts]:
         return
     with Interrupts(raising=False) as stop:
         yield stop
+
+
+@contextmanager
+def spawning() -> Iterator[None]:
+    """Start child processes meanwhile that never act on SIGINT or SIGTERM: both are blocked in this thread, and a
+    child starts with the signals its parent's thread blocks (a run's workers leave the stopping to the run, which
+    ends them; Ctrl-C in a terminal, ``timeout`` and batch schedulers signal the whole process group). A signal that
+    arrives meanwhile is delivered once they are unblocked, never lost; in the main thread a stop is also held
+    until the block is done, so a child is never left half started (reading the rest of its start-up data, which
+    never comes, it would print a traceback)."""
+    main = threading.current_thread() is threading.main_thread()
+    with _installed.protected() if main and _installed is not None else contextlib.nullcontext():
+        previous = signal.pthread_sigmask(signal.SIG_BLOCK, SIGNALS)
+        try:
+            yield
+        finally:
+            signal.pthread_sigmask(signal.SIG_SETMASK, previous)
 
 
 def stopped_by(error: BaseException) -> bool:

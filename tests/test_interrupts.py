@@ -136,3 +136,26 @@ def test_a_run_from_python_gets_handlers_for_its_duration_and_the_console_script
         assert installed() is console, "stays until the process ends"
     finally:
         console.restore()
+
+
+def test_a_child_started_while_spawning_never_acts_on_the_signals_and_a_stop_meanwhile_waits():
+    import subprocess
+    import sys
+    import time
+
+    from babblegen.interrupts import spawning
+
+    with Interrupts() as stop:
+        with pytest.raises(Interrupted, match="SIGTERM"), spawning():
+            child = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+            _term()  # blocked here until the child is started
+            started = "no stop raised inside"
+        assert started and stop.pending == "SIGTERM"
+    try:
+        for s in (signal.SIGINT, signal.SIGTERM):  # as Ctrl-C in a terminal, or `timeout`, send to the group
+            child.send_signal(s)
+        time.sleep(0.5)
+        assert child.poll() is None, "the child left the stopping to its parent"
+    finally:
+        child.kill()
+        child.wait()

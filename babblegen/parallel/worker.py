@@ -41,8 +41,10 @@ def worker_main(
     reports, and a coordinator that is gone (its pipe closed: a crash, a full disk) is no error of this process's
     to print a traceback for.
     """
-    # Ctrl-C in a terminal reaches the whole process group: the coordinator stops the run and then the workers
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # (already so when spawned from the main thread)
+    # Ctrl-C in a terminal, `timeout` and batch schedulers signal the whole process group: the coordinator stops
+    # the run and then the workers (both signals are blocked already: `babblegen.interrupts.spawning`)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
     code = 0
     try:
         _serve(conn, task_name, settings, run_seed, prepare, describe)
