@@ -32,6 +32,7 @@ from babblegen.explorers.base import ask_while_possible
 from babblegen.exporters.sidecar import attempt_row, clone_row, recorded_poses
 from babblegen.interrupts import for_command, stopped_by
 from babblegen.outputs import RunOutputs
+from babblegen.progress import Progress
 from babblegen.provenance import machine, versions
 from babblegen.shapes import ObjectSpec
 from babblegen.store import AttemptRecord, RunStore, atomic_write
@@ -273,7 +274,7 @@ class Run:
                         self._open_resumed(echo) if self.resumed else self._open_new()
                         self.store.start_writer()  # commit points are written while the search goes on
                         self._opened, resumed_at = True, self.counters["attempts"]
-                    bar = self._progress_bar(progress)
+                    bar = Progress(self.config, self.counters, self.explorer, progress)
                     self._loop(bar)
                     with stop.protected():
                         self.store.commit(self.explorer.state_dict(), self.counters, final=True)
@@ -341,7 +342,7 @@ class Run:
             self.evaluator.submit([command_for(c) for c in candidates], [c.index for c in candidates])
         return batches
 
-    def _loop(self, bar) -> None:
+    def _loop(self, bar: Progress) -> None:
         """ask -> rollout -> describe -> tell -> write, one generation at a time, with every generation the
         explorer lets overlap (NovEB's ``lag``) asked and running meanwhile: after each tell, the explorer is asked
         for all it allows (`ask_while_possible`), so what is asked depends on the order of tells alone, never on
@@ -377,7 +378,7 @@ class Run:
                 self.counters["generations"] += 1
                 if commit and not last:
                     self.store.commit(self.explorer.state_dict(), self.counters)
-            self._show(bar)
+            bar.generation_told()
 
     def _record_ends(self, candidates: list, rollouts: list) -> None:
         """The scenes executed movements left, which later starts may begin from (`StartSampler.made`)."""
@@ -388,7 +389,7 @@ class Run:
                     objects = None if cand.start is None else cand.start.objects
                     starts.record_end(cand.index, np.array(recorded_poses(rollout.final_poses)), objects)
 
-    def _write_prepared(self, unwritten: deque, bar, wait: bool) -> None:
+    def _write_prepared(self, unwritten: deque, bar: Progress, wait: bool) -> None:
         """Write the attempts at the front of ``unwritten`` whose episodes are prepared (``wait``: all of them)."""
         while unwritten:
             cand, rollout = unwritten[0][:2]
@@ -408,7 +409,7 @@ class Run:
             seconds.append(r.timings.pop("descriptor", 0.0))
         return codes, seconds
 
-    def _write_attempt(self, cand, rollout, code, evaluation, describe_s: float, waited: float, bar) -> None:
+    def _write_attempt(self, cand, rollout, code, evaluation, describe_s: float, waited: float, bar: Progress) -> None:
         with self._interrupts.protected():
             c = self.counters
             failures = int(rollout.timings.pop("worker_failures", 0))
@@ -424,47 +425,4 @@ class Run:
             if rollout.feasible:
                 c["executed"] += 1
                 c["contacts"] += int(rollout.touched.any())
-            if bar is not None and self._bar_counts_attempts():
-                bar.update(1)
-                self._show_counts(bar)
-
-    def _bar_counts_attempts(self) -> bool:
-        """Whether ``max_attempts`` can end the run before its generations do (a generation attempts at most
-        ``children`` movements, or ``population``, fewer when children repeat tried genomes): the progress bar
-        then counts attempts, and generations otherwise (an unreachable attempt count would make it promise
-        hours)."""
-        cfg = self.config
-        per_generation = cfg.noveb.population
-        if cfg.explorer == "noveb":
-            per_generation = max(per_generation, cfg.noveb.children)
-        return cfg.max_attempts is not None and cfg.max_attempts < per_generation * cfg.noveb.generations
-
-    def _progress_bar(self, enabled: bool):
-        """Counts attempts when ``max_attempts`` can end the run first, generations otherwise."""
-        if not enabled:
-            return None
-        from tqdm import tqdm
-
-        if self._bar_counts_attempts():
-            total, initial, unit = self.config.max_attempts, self.counters["attempts"], "attempt"
-        else:
-            total, initial, unit = self.config.noveb.generations, self.counters["generations"], "gen"
-        return tqdm(total=total, initial=initial, unit=unit, dynamic_ncols=True, smoothing=0.05)
-
-    def _show(self, bar) -> None:
-        if bar is None:
-            return
-        if not self._bar_counts_attempts():
-            bar.update(1)
-            self._show_counts(bar)
-
-    def _show_counts(self, bar) -> None:
-        """The counters beside the bar, as of the attempt or generation it just counted."""
-        c = self.counters
-        bar.set_postfix(
-            attempts=c["attempts"],
-            episodes=c["executed"],
-            contact=c["contacts"],
-            archive=self.explorer.archive_size,
-            refresh=False,
-        )
+            bar.attempt_written()

@@ -643,15 +643,16 @@ def _spawned_workers(pid: int) -> list[int]:
     ("max_attempts", "counts"),
     [(0, "gen"), (600, "attempt"), (2000 * 128 - 1, "attempt"), (2000 * 128, "gen"), (10**6, "gen")],
 )
-def test_the_progress_bar_counts_what_ends_the_run(tmp_path, max_attempts, counts):
+def test_the_progress_bar_counts_what_ends_the_run(max_attempts, counts):
     """With the default generations (2,000 of at most 128 new movements) at most 256,000 movements are
     attempted: a larger --max-attempts cannot end the run, and a bar counting to it would promise days too many
     (0: no limit, the generations end the run)."""
     from babblegen.config import RunConfig
-    from babblegen.run import Run
+    from babblegen.progress import Progress
 
-    run = Run.start(tmp_path / "ds", RunConfig(max_attempts=max_attempts))
-    bar = run._progress_bar(enabled=True)
+    config = RunConfig(max_attempts=max_attempts)
+    config.validate()
+    bar = Progress(config, dict.fromkeys(("attempts", "generations"), 0), explorer=None).bar
     try:
         assert bar.unit == counts
         assert bar.total == (max_attempts if counts == "attempt" else 2000)
@@ -689,8 +690,9 @@ def test_an_error_in_the_coordinator_stops_the_workers_without_their_tracebacks(
 
 def _config_from_flags(*flags: str, toml: str | None = None, tmp_path: Path | None = None) -> RunConfig:
     """The configuration `generate` would run with (defaults < TOML < flags), without running it."""
-    from babblegen.cli import _camera_overrides, _overrides, build_parser
+    from babblegen.cli import build_parser
     from babblegen.config import load_toml, merge
+    from babblegen.generate_flags import camera_overrides, overrides
 
     args = build_parser().parse_args(["generate", "--out", "x", *flags])
     data = {}
@@ -698,8 +700,8 @@ def _config_from_flags(*flags: str, toml: str | None = None, tmp_path: Path | No
         path = tmp_path / "run.toml"
         path.write_text(toml)
         data = load_toml(path)
-    data = merge(data, _overrides(args))
-    _camera_overrides(args, data)
+    data = merge(data, overrides(args))
+    camera_overrides(args, data)
     return RunConfig.from_dict(data)
 
 
