@@ -93,9 +93,15 @@ class ProcessEvaluator(PoolEvaluator):
         # Starting multiprocessing's resource tracker (the first spawn does) unblocks SIGINT and SIGTERM in this
         # thread: done before, so that the worker is started with both blocked
         resource_tracker.ensure_running()
-        with spawning():  # it never acts on SIGINT / SIGTERM, not even while it imports its libraries
-            p.start()
-        child.close()
+        try:
+            with spawning():  # it never acts on SIGINT / SIGTERM, not even while it imports its libraries
+                p.start()
+        except BaseException:  # a stop, held until it was started: it is not left warming up for nobody
+            if p.pid is not None:
+                p.kill()
+            raise
+        finally:
+            child.close()
         return _Worker(p, parent)
 
     def _await_ready(self, w: _Worker, timeout: float = 600.0) -> None:
