@@ -12,6 +12,7 @@ from collections import deque
 from collections.abc import Callable, Iterator
 from typing import Any
 
+from babblegen.fingerprint import fingerprint
 from babblegen.scene import TaskSpec
 from babblegen.seeded import Describe, Prepare, seeded_rollout, warm_up
 from babblegen.world.rollout import Command, Rollout
@@ -111,8 +112,6 @@ class LocalEvaluator(Evaluator):
         prepare: Prepare | None = None,
         describe: Describe | None = None,
     ):
-        from babblegen.fingerprint import fingerprint
-
         self.world = world or World(task, settings, seed=run_seed)
         self.run_seed, self.prepare, self.describe = run_seed, prepare, describe
         warm_up(self.world, prepare)

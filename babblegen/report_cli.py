@@ -1,5 +1,6 @@
 """`babblegen view` (Rerun) and `babblegen report` (the paper's figures and a summary), registered on the
-main command line by `babblegen.cli`."""
+main command line by `babblegen.cli`. The viewer and the report are imported when their command runs: either would
+add a quarter to ``babblegen --help``."""
 
 from __future__ import annotations
 

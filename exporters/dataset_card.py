@@ -9,6 +9,7 @@ from typing import Any
 
 from babblegen.dataset.lerobot import read_dataset_info
 from babblegen.dataset.sidecar import read_run_info
+from babblegen.objects import HELDOUT_SHAPES, VARIED_SHAPES, ObjectRanges
 from babblegen.store import Sink, atomic_write
 
 CARD = "README.md"
@@ -96,8 +97,6 @@ def starts_text(cfg: dict[str, Any]) -> str:
 
 def objects_text(cfg: dict[str, Any]) -> str:
     """Which objects stood on the table, and the distribution drawn ones came from (``world.objects``)."""
-    from babblegen.objects import HELDOUT_SHAPES, VARIED_SHAPES, ObjectRanges
-
     world = cfg.get("world") or {}
     kind = world.get("objects", "paper")
     factors = (
