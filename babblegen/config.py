@@ -11,7 +11,11 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
+from babblegen.descriptors import DESCRIPTORS
+from babblegen.explorers import EXPLORERS
 from babblegen.explorers.noveb import NovEBConfig, upgrade_stored_config
+from babblegen.starts import run_starts
+from babblegen.tasks import TASKS, get_task
 from babblegen.world.settings import LEGACY_CAMERAS, WorldSettings
 
 # The head camera's video codecs (settings: babblegen.exporters.lerobot_codecs.video_encoder). H.264 is the
@@ -93,10 +97,6 @@ class RunConfig:
 
     def validate(self) -> None:
         """Raise ConfigError for values that cannot work, with the valid choices where there are some."""
-        from babblegen.descriptors import DESCRIPTORS
-        from babblegen.explorers import EXPLORERS
-        from babblegen.tasks import TASKS
-
         if self.task not in TASKS:
             raise ConfigError(f"unknown task {self.task!r}; choose one of: {', '.join(sorted(TASKS))}")
         if self.explorer not in EXPLORERS:
@@ -140,9 +140,6 @@ class RunConfig:
 
     def _check_placement(self, starts: int = 20) -> None:
         """Refuse drawn objects that the start regions cannot hold: the run's first starts are drawn here."""
-        from babblegen.starts import run_starts
-        from babblegen.tasks import get_task
-
         sampler = run_starts(get_task(self.task), self.world, self.seed)
         try:
             for attempt in range(starts):

@@ -12,8 +12,7 @@ from collections import deque
 from collections.abc import Callable, Iterator
 from typing import Any
 
-import numpy as np
-
+from babblegen.fingerprint import fingerprint
 from babblegen.scene import TaskSpec
 from babblegen.seeded import Describe, Prepare, seeded_rollout, warm_up
 from babblegen.world.rollout import Command, Rollout
@@ -58,29 +57,6 @@ def render_and_prepare_stepwise(world: World, rollout: Rollout, prepare: Prepare
     prepare(rollout)
     rollout.timings["render"] = rollout.timings.get("render", 0.0) + rendering
     rollout.timings["prepare"] = rollout.timings.get("prepare", 0.0) + rendering
-
-
-def arm_info(task: TaskSpec) -> dict:
-    """What the explorers need to know about the arm, from its URDF alone (no simulator): joint names and
-    limits, the home tool position in normalised workspace coordinates, and ``in_reach``, whether a normalised
-    waypoint is within the arm's reach (:class:`babblegen.world.kinematics.ReachShell`)."""
-    from babblegen.tasks import get_robot
-    from babblegen.world.kinematics import ArmKinematics, ReachShell, UrdfModel
-
-    robot = get_robot(task.robot_uid)
-    kin = ArmKinematics(UrdfModel.load(robot.urdf), robot.base_link, robot.tool_link)
-    home_tool = kin.tool_position(np.asarray(robot.home_qpos))[0]
-    shell = ReachShell.of(kin)
-
-    def in_reach(point: np.ndarray) -> bool:
-        return bool(shell.contains(task.workspace.to_world(point)))
-
-    return {
-        "joints": kin.joint_names,
-        "limits": kin.limits,
-        "start_norm": task.workspace.to_norm(home_tool),
-        "in_reach": in_reach,
-    }
 
 
 class Evaluator(ABC):
@@ -136,8 +112,6 @@ class LocalEvaluator(Evaluator):
         prepare: Prepare | None = None,
         describe: Describe | None = None,
     ):
-        from babblegen.fingerprint import fingerprint
-
         self.world = world or World(task, settings, seed=run_seed)
         self.run_seed, self.prepare, self.describe = run_seed, prepare, describe
         warm_up(self.world, prepare)

@@ -22,6 +22,11 @@ from typing import Any
 
 import numpy as np
 
+from babblegen.descriptors import describe_rollout, make_descriptor
+from babblegen.tasks import get_task
+from babblegen.world.rollout import Command
+from babblegen.world.settings import WorldSettings
+
 # Set, it changes this process's fingerprint as a machine that computes otherwise would: how the tests make one
 # node of a cluster look like another kind of machine. Not a setting of babblegen's.
 SALT_ENV = "BABBLEGEN_FINGERPRINT_SALT"
@@ -43,8 +48,6 @@ def rollout_digests(rollout: Any, descriptor: Any | None = None) -> dict[str, An
     """sha256 of each thing a rollout recorded: every per-frame field of ``FIELDS`` (float32 bytes), the after
     image, the head camera's instance masks at both ends when recorded, and the behaviour descriptor's code (hex)
     of ``descriptor``. An infeasible rollout: its reason."""
-    from babblegen.descriptors import describe_rollout
-
     if not rollout.feasible:
         return {"feasible": False, "reason": rollout.reason}
     frames = rollout.frames
@@ -64,9 +67,7 @@ def rollout_digests(rollout: Any, descriptor: Any | None = None) -> dict[str, An
 def fingerprint(world: Any) -> str:
     """This machine's fingerprint in ``world`` (a warm `babblegen.world.world.World`): the canonical movements
     simulated and their ends rendered with its settings (`CANONICAL`), hashed."""
-    from babblegen.descriptors import make_descriptor
-    from babblegen.seeded import seeded_rollout
-    from babblegen.world.rollout import Command
+    from babblegen.seeded import seeded_rollout  # the simulator: loaded where a World runs, not by this module
 
     phash = make_descriptor("phash16")
     parts = []
@@ -80,8 +81,7 @@ def fingerprint(world: Any) -> str:
 
 def fingerprint_here(task_name: str, settings: Any) -> str:
     """The fingerprint of a fresh World of ``task_name`` with ``settings`` in this process."""
-    from babblegen.seeded import warm_up
-    from babblegen.tasks import get_task
+    from babblegen.seeded import warm_up  # the simulator
     from babblegen.world.world import World
 
     world = World(get_task(task_name), settings)
@@ -97,13 +97,16 @@ def start_in_subprocess(task_name: str, settings: Any):
     `finish_subprocess` collects it."""
     import subprocess
 
-    child = subprocess.Popen(
-        [sys.executable, "-m", "babblegen.fingerprint"],
-        stdin=subprocess.PIPE,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
+    from babblegen.interrupts import spawning
+
+    with spawning():  # a signal to the whole process group reaches the run, which stops its children itself
+        child = subprocess.Popen(
+            [sys.executable, "-m", "babblegen.fingerprint"],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
     child.stdin.write(json.dumps({"task": task_name, "world": settings.to_dict()}))
     child.stdin.close()
     return child
@@ -119,8 +122,6 @@ def finish_subprocess(child, timeout: float = 600.0) -> str:
 
 
 def main() -> None:
-    from babblegen.world.settings import WorldSettings
-
     os.environ.setdefault("LP_NUM_THREADS", "1")
     spec = json.loads(sys.stdin.read())
     print(fingerprint_here(spec["task"], WorldSettings(**spec["world"])), flush=True)

@@ -9,11 +9,17 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
-if TYPE_CHECKING:
-    from babblegen.config import RunConfig
-    from babblegen.scene import TaskSpec
+from babblegen.config import RunConfig
+from babblegen.dataset.lerobot import import_lerobot
+from babblegen.dataset.schema import features, with_default_features
+from babblegen.exporters.dataset_card import DatasetCardSink
+from babblegen.exporters.lerobot import LeRobotSink
+from babblegen.exporters.lerobot_encoding import EpisodeEncoder
+from babblegen.exporters.rerun import JpegFrames, RerunSink
+from babblegen.exporters.sidecar import SidecarSink
+from babblegen.scene import TaskSpec
 
 
 @dataclass
@@ -32,8 +38,6 @@ class RunOutputs:
 
     def import_libraries(self) -> None:
         """Import what the sinks need (seconds: done while worker processes start)."""
-        from babblegen.exporters.lerobot import import_lerobot
-
         import_lerobot()
         if self.config.rerun:
             # before Rerun's logger starts: the sink reports its own failures, in one line (`RerunSink`)
@@ -43,8 +47,6 @@ class RunOutputs:
 
     def features(self) -> dict:
         """The LeRobot dataset's features."""
-        from babblegen.exporters.lerobot_schema import features
-
         world = self.config.world
         shape = (world.camera_height, world.camera_width)
         return features(self.joint_names, self.task.object_names, *shape, world.cameras, self.task, world)
@@ -52,15 +54,11 @@ class RunOutputs:
     def preparers(self):
         """The sinks' per-episode work, done by the worker that ran the movement: the LeRobot episode's video
         and statistics, the Rerun recording's JPEG frames."""
-        from babblegen.evaluation import Preparers
-        from babblegen.exporters.lerobot_encoding import EpisodeEncoder
-        from babblegen.exporters.lerobot_schema import with_default_features
+        from babblegen.evaluation import Preparers  # the simulator's module: imported when a run starts
 
         cfg = self.config
         steps = {"lerobot": EpisodeEncoder(cfg.world.fps, with_default_features(self.features()), cfg.video_codec)}
         if cfg.rerun:
-            from babblegen.exporters.rerun import JpegFrames
-
             steps["rerun"] = JpegFrames(frames=cfg.rerun_frames)
         return Preparers(steps)
 
@@ -68,10 +66,6 @@ class RunOutputs:
         """The run's outputs, in the order they receive each attempt (the sidecar row records the LeRobot
         write time, so it comes after it; the card is refreshed after the dataset's metadata).
         ``resumed_counters``: a resumed run's counters, read when a sink is built."""
-        from babblegen.exporters.dataset_card import DatasetCardSink
-        from babblegen.exporters.lerobot import LeRobotSink
-        from babblegen.exporters.sidecar import SidecarSink
-
         cfg, out, task_text = self.config, self.out, self.task_text
         create = {"fps": cfg.world.fps, "feats": self.features(), "robot_type": self.task.robot_uid}
         makers: list[tuple[str, Any]] = [
@@ -79,7 +73,6 @@ class RunOutputs:
             ("sidecar", lambda state: SidecarSink(state, out)),
         ]
         if cfg.rerun:
-            from babblegen.exporters.rerun import RerunSink
 
             def rerun(state: dict | None) -> RerunSink:
                 if state is None and resumed_counters is not None:  # the run was made without recordings: start here

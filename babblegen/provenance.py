@@ -9,6 +9,8 @@ import platform
 import subprocess
 from pathlib import Path
 
+from babblegen.interrupts import spawning
+
 PACKAGES = (
     "babblegen",
     "sapien",
@@ -58,10 +60,18 @@ def machine() -> dict[str, object]:
         flags = set(fields.get("flags", "").split())
         info["cpu_flags"] = [f for f in CPU_FLAGS if f in flags]
     try:
-        mesa = subprocess.run(
-            ["dpkg-query", "-W", "-f=${Version}", "mesa-vulkan-drivers"], capture_output=True, text=True, timeout=10
-        )
-        info["mesa"] = mesa.stdout.strip() or "unknown"
+        with spawning():  # a signal to the whole process group (Ctrl-C as a run opens) does not cut it short
+            query = subprocess.Popen(
+                ["dpkg-query", "-W", "-f=${Version}", "mesa-vulkan-drivers"],
+                stdout=subprocess.PIPE,
+                stderr=subprocess.PIPE,
+                text=True,
+            )
+        try:
+            version = query.communicate(timeout=10)[0]
+        finally:
+            query.kill()  # (when it took too long)
+        info["mesa"] = version.strip() or "unknown"
     except (OSError, subprocess.SubprocessError):
         info["mesa"] = "unknown"
     return info

@@ -1,5 +1,6 @@
 """`babblegen view` (Rerun) and `babblegen report` (the paper's figures and a summary), registered on the
-main command line by `babblegen.cli`."""
+main command line by `babblegen.cli`. The viewer and the report are imported when their command runs: either would
+add a quarter to ``babblegen --help``."""
 
 from __future__ import annotations
 
@@ -9,7 +10,8 @@ import sys
 from pathlib import Path
 
 from babblegen.config import ConfigError
-from babblegen.exporters.sidecar import ATTEMPTS, RUN_INFO, sidecar_dir
+from babblegen.dataset.lerobot import read_dataset_info
+from babblegen.dataset.paths import ATTEMPTS, LEROBOT_INFO, RUN_INFO, sidecar_dir
 
 
 def _positive_int(text: str) -> int:
@@ -112,12 +114,9 @@ def cmd_view(args: argparse.Namespace) -> int:
 
 
 def _total_episodes(root: Path) -> int:
-    import json
-
-    info = root / "meta" / "info.json"
-    if not info.is_file():
-        raise ConfigError(f"{root} has no LeRobot dataset (no {info})")
-    return int(json.loads(info.read_text()).get("total_episodes", 0))
+    if not (root / LEROBOT_INFO).is_file():
+        raise ConfigError(f"{root} has no LeRobot dataset (no {root / LEROBOT_INFO})")
+    return int(read_dataset_info(root).get("total_episodes", 0))
 
 
 def cmd_report(args: argparse.Namespace) -> int:

@@ -23,13 +23,20 @@ from typing import Any
 
 import numpy as np
 
+from babblegen.assembly import arm_info, build_descriptor, build_evaluator, build_explorer, build_task
 from babblegen.config import ConfigError, RunConfig, resumed_config
-from babblegen.exporters.sidecar import attempt_row, clone_row, read_attempts, recorded_poses
-from babblegen.interrupts import Interrupted, Interrupts, StartupInterrupts
+from babblegen.dataset.paths import RUN_INFO, is_babblegen_dataset, sidecar_dir
+from babblegen.dataset.sidecar import read_attempts, read_run_info
+from babblegen.descriptors import describe_rollout
+from babblegen.explorers.base import ask_while_possible
+from babblegen.exporters.sidecar import attempt_row, clone_row, recorded_poses
+from babblegen.interrupts import for_command, stopped_by
 from babblegen.outputs import RunOutputs
+from babblegen.progress import Progress
 from babblegen.provenance import machine, versions
 from babblegen.shapes import ObjectSpec
-from babblegen.store import RUN_INFO, AttemptRecord, RunStore, atomic_write, read_run_info, sidecar_dir
+from babblegen.store import AttemptRecord, RunStore, atomic_write
+from babblegen.tasks import get_robot
 from babblegen.world.rollout import Command
 
 FORMAT_VERSION = 1  # of run.json
@@ -47,6 +54,8 @@ class RunSummary:
     interrupted: bool = False
     clones: int = 0
     resumed_at: int = 0  # attempts made before this sitting (a resumed run)
+    signal: str | None = None  # the stop received (SIGINT / SIGTERM), also when it came as the run finished
+    written: bool = True  # False: stopped before its dataset held an episode, this sitting left nothing behind
 
     def lines(self) -> list[str]:
         made = self.attempts - self.resumed_at
@@ -60,10 +69,6 @@ class RunSummary:
             f"{self.seconds:.0f} s ({rate:.2f} attempts/s)",
             f"dataset: {self.out}",
         ]
-
-
-def is_babblegen_dataset(path: Path) -> bool:
-    return (sidecar_dir(path) / RUN_INFO).is_file()
 
 
 def check_output(out: Path, resume: bool) -> None:
@@ -134,10 +139,6 @@ class Run:
 
     # --- opening --------------------------------------------------------------------------------------------
     def _build_parts(self, check_interrupt: Callable[[], None]) -> None:
-        from babblegen.assembly import build_descriptor, build_evaluator, build_explorer, build_task
-        from babblegen.evaluation import arm_info
-        from babblegen.tasks import get_robot
-
         cfg = self.config
         self.task = build_task(cfg)
         self.robot = get_robot(self.task.robot_uid)
@@ -150,10 +151,11 @@ class Run:
         self.task_text = self.outputs.task_text
         try:  # while worker processes start (seconds), import what the sinks need here
             self.outputs.import_libraries()
-            check_interrupt()
+            check_interrupt()  # a library's bare ``except:`` may have swallowed a stop
             self.evaluator.wait_ready()
         except BaseException:
-            self.evaluator.close()
+            evaluator, self.evaluator = self.evaluator, None
+            evaluator.close()
             raise
 
     def _sinks(self, repo_id: str) -> list[tuple[str, Any]]:
@@ -161,6 +163,7 @@ class Run:
         return self.outputs.sinks(repo_id, self.counters if self.resumed else None)
 
     def _open_new(self) -> None:
+        self._fresh = True  # this sitting makes the dataset (`_discard`)
         self.store.open_sinks(self._sinks(self.repo_id)[:1])  # LeRobot creates the root directory
         self.store.write_info(
             {
@@ -255,51 +258,76 @@ class Run:
 
     # --- running --------------------------------------------------------------------------------------------
     def execute(self, progress: bool = True, echo=print) -> RunSummary:
-        """Run to completion or interruption. The dataset is finalized and loads either way."""
+        """Run to completion or to a stop (SIGINT / SIGTERM, at any moment: `babblegen.interrupts`). The dataset is
+        finalized and loads either way; a stop before it holds an episode leaves nothing behind (`_discard`)."""
         t0 = time.perf_counter()
-        if self.resumed:
-            self.store.lock.acquire(self.out)  # before anything is rolled back: another run may be writing
-        with StartupInterrupts() as starting:
-            self._build_parts(starting.check)
+        self.evaluator, self._fresh, self._opened = None, False, False
+        interrupted, bar, resumed_at = False, None, self.counters["attempts"]
+        with for_command() as stop:
+            self._interrupts = stop
             try:
-                self._open_resumed(echo) if self.resumed else self._open_new()
-                self.store.start_writer()  # commit points are written while the search goes on
-                starting.check()
-            except BaseException:
-                self.evaluator.close()
-                self.store.close()
-                raise
-        resumed_at = self.counters["attempts"]
-        interrupted = False
-        bar = self._progress_bar(progress)
-        with Interrupts() as self._interrupts:
-            try:
-                self._loop(bar)
-                with self._interrupts.protected():
-                    self.store.commit(self.explorer.state_dict(), self.counters, final=True)
-            except (Interrupted, KeyboardInterrupt):
+                with stop.raising():
+                    if self.resumed:
+                        self.store.lock.acquire(self.out)  # before anything is rolled back: another run may write
+                    self._build_parts(stop.check)
+                    with stop.protected():  # a dataset is opened whole or not at all
+                        self._open_resumed(echo) if self.resumed else self._open_new()
+                        self.store.start_writer()  # commit points are written while the search goes on
+                        self._opened, resumed_at = True, self.counters["attempts"]
+                    bar = Progress(self.config, self.counters, self.explorer, progress)
+                    self._loop(bar)
+                    with stop.protected():
+                        self.store.commit(self.explorer.state_dict(), self.counters, final=True)
+                        stop.record_only()  # finished: a signal from now on is recorded only
+            except BaseException as e:
+                if not stopped_by(e) and stop.pending is None:
+                    raise
                 interrupted = True
+                if not stopped_by(e):  # raised as a signal arrived, by whatever the signal cut short
+                    print(f"babblegen: warning: stopping on {stop.pending}: {type(e).__name__}: {e}", file=sys.stderr)
             finally:
-                with self._interrupts.closing():
-                    if bar is not None:
-                        bar.close()
-                    try:
-                        self.store.close()
-                    finally:  # also when closing the store fails (a full disk): the workers are stopped
-                        self.evaluator.close()
+                with stop.closing():
+                    self._close(bar)
+            written = self._opened
+            if interrupted and self._fresh and self.counters["executed"] == 0:
+                self._discard()
+                written = False
         c = self.counters
         return RunSummary(
             self.out,
             c["attempts"],
             c["executed"],
             c["contacts"],
-            self.explorer.archive_size,
+            self.explorer.archive_size if written else 0,
             c["generations"],
             time.perf_counter() - t0,
             interrupted,
             c["clones"],
             resumed_at,
+            stop.pending,
+            written,
         )
+
+    def _close(self, bar) -> None:
+        if bar is not None:
+            bar.close()
+        try:
+            self.store.close()
+        finally:  # also when closing the store fails (a full disk): the workers are stopped
+            if self.evaluator is not None:
+                self.evaluator.close()
+
+    def _discard(self) -> None:
+        """A stop before the dataset this sitting made held an episode (LeRobot loads no dataset of none): nothing of
+        it is kept. A new run's directory is left empty, as it was found; a resumed run that had started afresh keeps
+        its run.json alone, which --resume starts again."""
+        info = self.store.dir / RUN_INFO
+        kept = info.read_bytes() if self.resumed and info.exists() else None
+        for p in self.out.iterdir() if self.out.is_dir() else []:
+            shutil.rmtree(p) if p.is_dir() else p.unlink()
+        if kept is not None:
+            self.store.dir.mkdir(parents=True, exist_ok=True)
+            atomic_write(info, kept)
 
     def _finished(self) -> bool:
         """The stopping rule: all generations told, or ``max_attempts`` movements attempted. Clones (children
@@ -314,15 +342,13 @@ class Run:
             self.evaluator.submit([command_for(c) for c in candidates], [c.index for c in candidates])
         return batches
 
-    def _loop(self, bar) -> None:
+    def _loop(self, bar: Progress) -> None:
         """ask -> rollout -> describe -> tell -> write, one generation at a time, with every generation the
         explorer lets overlap (NovEB's ``lag``) asked and running meanwhile: after each tell, the explorer is asked
         for all it allows (`ask_while_possible`), so what is asked depends on the order of tells alone, never on
         timing. Generations are told in the order asked. An attempt is written once its episode is prepared
         (workers prepare episodes when they have no movement to simulate), in attempt order; at a commit point,
         every attempt told so far is."""
-        from babblegen.explorers.base import ask_while_possible
-
         limit, generations = self.config.max_attempts, self.config.noveb.generations
         open_batches = deque(self._submit(self.explorer.open_batches()))  # in flight at the commit point resumed
         if not self._finished():
@@ -352,7 +378,7 @@ class Run:
                 self.counters["generations"] += 1
                 if commit and not last:
                     self.store.commit(self.explorer.state_dict(), self.counters)
-            self._show(bar)
+            bar.generation_told()
 
     def _record_ends(self, candidates: list, rollouts: list) -> None:
         """The scenes executed movements left, which later starts may begin from (`StartSampler.made`)."""
@@ -363,7 +389,7 @@ class Run:
                     objects = None if cand.start is None else cand.start.objects
                     starts.record_end(cand.index, np.array(recorded_poses(rollout.final_poses)), objects)
 
-    def _write_prepared(self, unwritten: deque, bar, wait: bool) -> None:
+    def _write_prepared(self, unwritten: deque, bar: Progress, wait: bool) -> None:
         """Write the attempts at the front of ``unwritten`` whose episodes are prepared (``wait``: all of them)."""
         while unwritten:
             cand, rollout = unwritten[0][:2]
@@ -373,8 +399,6 @@ class Run:
 
     def _describe(self, rollouts) -> tuple[list, list[float]]:
         """Each rollout's behaviour code (made where it ran; here for an evaluator that did not) and its seconds."""
-        from babblegen.descriptors import describe_rollout
-
         codes, seconds = [], []
         for r in rollouts:
             if r.feasible and r.code is None:
@@ -385,7 +409,7 @@ class Run:
             seconds.append(r.timings.pop("descriptor", 0.0))
         return codes, seconds
 
-    def _write_attempt(self, cand, rollout, code, evaluation, describe_s: float, waited: float, bar) -> None:
+    def _write_attempt(self, cand, rollout, code, evaluation, describe_s: float, waited: float, bar: Progress) -> None:
         with self._interrupts.protected():
             c = self.counters
             failures = int(rollout.timings.pop("worker_failures", 0))
@@ -401,47 +425,4 @@ class Run:
             if rollout.feasible:
                 c["executed"] += 1
                 c["contacts"] += int(rollout.touched.any())
-            if bar is not None and self._bar_counts_attempts():
-                bar.update(1)
-                self._show_counts(bar)
-
-    def _bar_counts_attempts(self) -> bool:
-        """Whether ``max_attempts`` can end the run before its generations do (a generation attempts at most
-        ``children`` movements, or ``population``, fewer when children repeat tried genomes): the progress bar
-        then counts attempts, and generations otherwise (an unreachable attempt count would make it promise
-        hours)."""
-        cfg = self.config
-        per_generation = cfg.noveb.population
-        if cfg.explorer == "noveb":
-            per_generation = max(per_generation, cfg.noveb.children)
-        return cfg.max_attempts is not None and cfg.max_attempts < per_generation * cfg.noveb.generations
-
-    def _progress_bar(self, enabled: bool):
-        """Counts attempts when ``max_attempts`` can end the run first, generations otherwise."""
-        if not enabled:
-            return None
-        from tqdm import tqdm
-
-        if self._bar_counts_attempts():
-            total, initial, unit = self.config.max_attempts, self.counters["attempts"], "attempt"
-        else:
-            total, initial, unit = self.config.noveb.generations, self.counters["generations"], "gen"
-        return tqdm(total=total, initial=initial, unit=unit, dynamic_ncols=True, smoothing=0.05)
-
-    def _show(self, bar) -> None:
-        if bar is None:
-            return
-        if not self._bar_counts_attempts():
-            bar.update(1)
-            self._show_counts(bar)
-
-    def _show_counts(self, bar) -> None:
-        """The counters beside the bar, as of the attempt or generation it just counted."""
-        c = self.counters
-        bar.set_postfix(
-            attempts=c["attempts"],
-            episodes=c["executed"],
-            contact=c["contacts"],
-            archive=self.explorer.archive_size,
-            refresh=False,
-        )
+            bar.attempt_written()

@@ -104,3 +104,18 @@ class TaskSpec:
 
     def to_dict(self) -> dict:
         return asdict(self)
+
+
+def yaw_quaternion(yaw: np.ndarray) -> np.ndarray:
+    """(..., 4) quaternions (w, x, y, z) of rotations by ``yaw`` about the vertical axis."""
+    half = 0.5 * np.asarray(yaw, dtype=np.float64)
+    zeros = np.zeros_like(half)
+    return np.stack([np.cos(half), zeros, zeros, np.sin(half)], axis=-1)
+
+
+def layout_poses(task: TaskSpec, layout: np.ndarray, objects: tuple[ObjectSpec, ...] | None = None) -> np.ndarray:
+    """(n_objects, 7) poses (x, y, z, qw, qx, qy, qz) of a layout: each object (the task's, or ``objects``) resting
+    on the table top."""
+    layout = np.asarray(layout, dtype=np.float64)
+    z = np.array([task.table_top + o.half_height for o in (task.objects if objects is None else objects)])
+    return np.concatenate([layout[:, :2], z[:, None], yaw_quaternion(layout[:, 2])], axis=1)

@@ -25,9 +25,7 @@ __all__ = [
     "Start",
     "StartDraw",
     "StartSampler",
-    "layout_poses",
     "run_starts",
-    "yaw_quaternion",
 ]
 
 _STREAM = 0x5747A  # the start draws' own random stream, apart from the explorer's and the rollouts'
@@ -105,25 +103,10 @@ class StartDraw:
 NEW_START = StartDraw()
 
 
-def yaw_quaternion(yaw: np.ndarray) -> np.ndarray:
-    """(..., 4) quaternions (w, x, y, z) of rotations by ``yaw`` about the vertical axis."""
-    half = 0.5 * np.asarray(yaw, dtype=np.float64)
-    zeros = np.zeros_like(half)
-    return np.stack([np.cos(half), zeros, zeros, np.sin(half)], axis=-1)
-
-
 def _yaw(q: np.ndarray) -> np.ndarray:
     """Rotation about the vertical of (..., 4) quaternions (w, x, y, z), radians."""
     w, x, y, z = np.moveaxis(q, -1, 0)
     return np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
-
-
-def layout_poses(task: TaskSpec, layout: np.ndarray, objects: tuple[ObjectSpec, ...] | None = None) -> np.ndarray:
-    """(n_objects, 7) poses (x, y, z, qw, qx, qy, qz) of a layout: each object (the task's, or ``objects``) resting
-    on the table top."""
-    layout = np.asarray(layout, dtype=np.float64)
-    z = np.array([task.table_top + o.half_height for o in (task.objects if objects is None else objects)])
-    return np.concatenate([layout[:, :2], z[:, None], yaw_quaternion(layout[:, 2])], axis=1)
 
 
 class StartSampler:

@@ -25,22 +25,12 @@ from typing import Any
 import numpy as np
 
 from babblegen.config import ConfigError
+from babblegen.dataset.paths import CHECKPOINT, PREVIOUS_CHECKPOINT, RUN_INFO, sidecar_dir
+from babblegen.dataset.sidecar import read_run_info
 from babblegen.lock import DatasetLock
+from babblegen.state_file import StateFileError, dumps, loads
 
-SIDECAR_DIR = "babblegen"
-RUN_INFO = "run.json"
-CHECKPOINT = "checkpoint.json"  # the last commit point (babblegen.state_file format)
-PREVIOUS_CHECKPOINT = "checkpoint.prev.json"  # the one before: the fallback if the last is damaged
 FORMAT_VERSION = 2  # 1: sink states stored under their own top-level keys
-
-
-def sidecar_dir(root: str | Path) -> Path:
-    return Path(root) / SIDECAR_DIR
-
-
-def read_run_info(root: str | Path) -> dict[str, Any]:
-    with open(sidecar_dir(root) / RUN_INFO) as f:
-        return json.load(f)
 
 
 @dataclass
@@ -124,8 +114,6 @@ class RunStore:
 
     def read_checkpoint(self, warn: Callable[[str], None]) -> dict[str, Any]:
         """The last commit point, or the one before it when the last is missing or damaged."""
-        from babblegen.state_file import StateFileError, loads
-
         problems = []
         for name in (CHECKPOINT, PREVIOUS_CHECKPOINT):
             try:
@@ -259,8 +247,6 @@ class RunStore:
             self.wait_written()
 
     def _commit_now(self, explorer_state: dict[str, Any], counters: dict[str, int], final: bool) -> None:
-        from babblegen.state_file import dumps
-
         states = {}
         for sink in self.sinks:
             t = time.perf_counter()

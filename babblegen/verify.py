@@ -16,20 +16,22 @@ from pathlib import Path
 
 import numpy as np
 
+from babblegen.assembly import build_descriptor
 from babblegen.config import ConfigError, RunConfig
-from babblegen.exporters.sidecar import ATTEMPTS, read_attempts, read_run_info, sidecar_dir
+from babblegen.dataset.lerobot import frame_columns, load_dataset
+from babblegen.dataset.paths import ATTEMPTS, sidecar_dir
+from babblegen.dataset.schema import CONTACTS, ENVIRONMENT_STATE, OBJECT_CONTACTS, STATE
+from babblegen.dataset.sidecar import read_attempts, read_run_info
+from babblegen.fingerprint import fingerprint
 from babblegen.provenance import differences_from_here
 from babblegen.shapes import ObjectSpec
+from babblegen.tasks import get_task
 from babblegen.world.rollout import Command
 
 # dataset column -> the recorded frames' field it must equal
-COLUMNS = {
-    "observation.state": "state",
-    "observation.environment_state": "object_poses",
-    "observation.contacts": "contacts",
-}
+COLUMNS = {STATE: "state", ENVIRONMENT_STATE: "object_poses", CONTACTS: "contacts"}
 # compared too where the dataset has them (datasets made before contact events were recorded do not)
-OPTIONAL_COLUMNS = {"observation.object_contacts": "object_contacts"}
+OPTIONAL_COLUMNS = {OBJECT_CONTACTS: "object_contacts"}
 
 
 def sample(rows: list[dict], n: int) -> list[dict]:
@@ -66,11 +68,8 @@ def first_difference(
 
 def verify(root: Path, episodes: int, echo=print) -> int:
     """Re-simulate and compare; returns the exit status (0: every sampled episode reproduces exactly)."""
-    from babblegen.assembly import build_descriptor
+    # the simulator, imported when it is needed: `babblegen --help` imports this module
     from babblegen.evaluation import seeded_rollout, warm_up
-    from babblegen.exporters.lerobot import load_dataset
-    from babblegen.fingerprint import fingerprint
-    from babblegen.tasks import get_task
     from babblegen.world.world import World
 
     info = read_run_info(root)
@@ -83,7 +82,7 @@ def verify(root: Path, episodes: int, echo=print) -> int:
     ds = load_dataset(root, info["repo_id"])
     present = set(ds.hf_dataset.column_names)
     columns = {**COLUMNS, **{c: f for c, f in OPTIONAL_COLUMNS.items() if c in present}}
-    table = ds.hf_dataset.select_columns(["episode_index", *columns]).with_format("numpy")[:]
+    table = frame_columns(ds, columns)
     episode_of = np.asarray(table["episode_index"]).reshape(-1)
     world = World(get_task(config.task), config.world, seed=config.seed)
     try:

@@ -62,8 +62,10 @@ def main() -> None:
     args = p.parse_args()
 
     from babblegen.config import VIDEO_CODECS
-    from babblegen.exporters.lerobot import SegmentWriter, features, load_dataset
+    from babblegen.dataset.lerobot import load_dataset
+    from babblegen.dataset.schema import features
     from babblegen.exporters.lerobot_encoding import encode_episode, encode_video
+    from babblegen.exporters.lerobot_writer import SegmentWriter
 
     task, joints, episodes = record_episodes(args.episodes, args.seed)
     n_frames = sum(len(f) for f in episodes)

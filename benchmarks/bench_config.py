@@ -130,11 +130,12 @@ def today(argv: list[str], toml: Path | None = None, parser: object | None = Non
     """babblegen generate's path: argparse, then TOML < flags, then RunConfig.from_dict."""
     from babblegen import cli
     from babblegen.config import RunConfig, load_toml, merge
+    from babblegen.generate_flags import overrides
 
     parser = parser or cli.build_parser()
     args = parser.parse_args(["generate", "--out", "/tmp/unused", *(["--config", str(toml)] if toml else []), *argv])
     data = load_toml(args.config) if args.config else {}
-    return RunConfig.from_dict(merge(data, cli._overrides(args)))
+    return RunConfig.from_dict(merge(data, overrides(args)))
 
 
 def with_draccus(argv: list[str], toml: Path | None = None):  # -> RunConfig

@@ -41,10 +41,11 @@ def record(n: int, seed: int, config: dict, replay: list[dict] | None = None) ->
     written are as long as that run's at that point; each made as a worker process makes it: the movement with
     its first and last frames (``total``), then the other frames rendered and the episode prepared
     (``prepare``)."""
+    from babblegen.assembly import arm_info
+    from babblegen.dataset.schema import features, with_default_features
     from babblegen.descriptors import make_descriptor
-    from babblegen.evaluation import Preparers, arm_info, render_and_prepare_stepwise, seeded_rollout, warm_up
+    from babblegen.evaluation import Preparers, render_and_prepare_stepwise, seeded_rollout, warm_up
     from babblegen.exporters.lerobot_encoding import EpisodeEncoder
-    from babblegen.exporters.lerobot_schema import features, with_default_features
     from babblegen.exporters.rerun import JpegFrames
     from babblegen.tasks import DEFAULT_TASK, get_task
     from babblegen.world.rollout import Command
@@ -224,22 +225,22 @@ def worker_seconds_of_row(row: dict) -> float:
 def run(
     rollouts: list, workers: int, out: Path, config: dict, whole: bool = False, replay: list[dict] | None = None
 ) -> dict:
-    import babblegen.assembly as assembly
+    import babblegen.run as run_module
     from babblegen.config import RunConfig
-    from babblegen.exporters.sidecar import read_attempts
+    from babblegen.dataset.sidecar import read_attempts
     from babblegen.run import Run
 
     cfg = RunConfig.from_dict(config)
     pool = ReplayPool(rollouts, workers, whole, replay)
-    original = assembly.build_evaluator
-    assembly.build_evaluator = lambda task, config, prepare=None, describe=None: pool
+    original = run_module.build_evaluator  # where the run loop looks it up
+    run_module.build_evaluator = lambda task, config, prepare=None, describe=None: pool
     try:
         run = Run.start(out, cfg)
         t0 = time.perf_counter()
         run.execute(progress=False, echo=lambda *_: None)
         wall = time.perf_counter() - t0
     finally:
-        assembly.build_evaluator = original
+        run_module.build_evaluator = original
     rows = read_attempts(out)
     # the steady state: after the first commit point, when every attempt before it has been written (between
     # commit points rows are written as their episodes are prepared, which idle workers may leave for later)
@@ -317,7 +318,7 @@ def plot(results: list[dict], label: str, width: int, path: Path) -> None:
 
 def recorded_cameras(root: Path, configured: list[dict]) -> list[dict]:
     """The cameras and kinds a dataset holds (its features), of those its configuration names."""
-    from babblegen.exporters.lerobot_schema import image_sources
+    from babblegen.dataset.schema import image_sources
 
     held = json.loads((root / "meta" / "info.json").read_text())["features"]
     kinds: dict[str, set[str]] = {}
@@ -353,7 +354,7 @@ def main() -> None:
     p.add_argument("--plot", type=Path, default=None, help="save the curve here (PNG)")
     args = p.parse_args()
     from babblegen.config import RunConfig, resumed_config
-    from babblegen.exporters.sidecar import read_attempts, read_run_info
+    from babblegen.dataset.sidecar import read_attempts, read_run_info
 
     say = (lambda *a, **k: None) if args.json else print
     replay = None

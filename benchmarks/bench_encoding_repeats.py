@@ -24,9 +24,10 @@ import numpy as np
 def render_episodes(side: int, n: int, seed: int) -> list[dict[str, dict[str, np.ndarray]]]:
     """``n`` executed movements seen by the head, front and wrist cameras, colour and depth."""
     os.environ.setdefault("LP_NUM_THREADS", "1")
+    from babblegen.camera_views import CAMERA_PRESETS
     from babblegen.tasks import DEFAULT_TASK, get_task
     from babblegen.world.rollout import Command
-    from babblegen.world.settings import CAMERA_PRESETS, WorldSettings
+    from babblegen.world.settings import WorldSettings
     from babblegen.world.world import World
 
     cameras = tuple(replace(CAMERA_PRESETS[name], depth=True) for name in ("head", "front", "wrist"))

@@ -31,7 +31,7 @@ import numpy as np
 
 def generate(out: Path, attempts: int, seed: int, workers: int) -> tuple[float, list[dict]]:
     from babblegen.config import RunConfig
-    from babblegen.exporters.sidecar import read_attempts
+    from babblegen.dataset.sidecar import read_attempts
     from babblegen.run import Run
 
     cfg = RunConfig(seed=seed, max_attempts=attempts, workers=workers)

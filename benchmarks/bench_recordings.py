@@ -62,26 +62,26 @@ def sink_cost(root: Path, n_episodes: int) -> None:
     import uuid
     from types import SimpleNamespace
 
-    from babblegen.exporters.lerobot import load_dataset
+    from babblegen.dataset.lerobot import column, episode_images, load_dataset
+    from babblegen.dataset.sidecar import read_attempts, read_run_info
     from babblegen.exporters.rerun.columns import EpisodeColumns, JpegFrames
     from babblegen.exporters.rerun.layout import new_recording
     from babblegen.exporters.rerun.scene import Scene
-    from babblegen.exporters.rerun.view import _column, _episode_images, episode_data
-    from babblegen.exporters.sidecar import read_attempts, read_run_info
+    from babblegen.exporters.rerun.view import episode_data
 
     info, rows = read_run_info(root), read_attempts(root)
     ds = load_dataset(root, info["repo_id"])
     scene = Scene(info["task"], info.get("joint_names"))
     table = ds.hf_dataset.with_format("arrow")[:]
     names = ("observation.state", "observation.ee_pos", "observation.environment_state", "observation.contacts")
-    data = {k: _column(table, k) for k in (*names, "timestamp", "index")}
+    data = {k: column(table, k) for k in (*names, "timestamp", "index")}
     total = ds.meta.total_episodes
     episodes = np.linspace(0, total - 1, min(n_episodes, total)).astype(int)
     loaded = []
     for e in episodes:
         meta = ds.meta.episodes[int(e)]
         a, b = int(meta["dataset_from_index"]), int(meta["dataset_to_index"])
-        views = _episode_images(ds, table, int(e), slice(a, b), data["timestamp"][a:b])
+        views = episode_images(ds, table, int(e), slice(a, b), data["timestamp"][a:b])
         loaded.append((int(e), a, b, views))
     executed = [r for r in rows if r["feasible"]]
     run_s = (rows[-1]["timings"]["written_at"] - rows[0]["timings"]["written_at"]) / max(1, len(executed))

@@ -28,7 +28,7 @@ class ArmContactsWorld(World):
 
     def _touching(self) -> np.ndarray:
         touched = np.zeros(len(self._object_entities), dtype=bool)
-        arm, object_of = self._arm_bodies, self._object_of_body
+        arm, object_of = self._contacts.arm_bodies, self._contacts.object_of_body
         for contact in self.sim.scene.px.get_contacts():
             a, b = contact.bodies
             obj = object_of.get(b) if a in arm else object_of.get(a) if b in arm else None
@@ -43,7 +43,7 @@ class EveryContactWorld(World):
     """The world reading every contact's impulses, never reusing those of sleeping objects."""
 
     def _touching(self) -> np.ndarray:
-        self._asleep.clear()
+        self._contacts.asleep.clear()
         return super()._touching()
 
 

@@ -37,9 +37,10 @@ def main() -> None:
     p.add_argument("--window", type=int, default=200)
     args = p.parse_args()
 
-    from babblegen.exporters.lerobot import SegmentWriter, features
+    from babblegen.dataset.schema import features
     from babblegen.exporters.lerobot_encoding import encode_episode
     from babblegen.exporters.lerobot_reference import ReferenceWriter
+    from babblegen.exporters.lerobot_writer import SegmentWriter
     from babblegen.tasks import get_task
     from babblegen.world.rollout import Command
     from babblegen.world.world import World

@@ -40,8 +40,8 @@ SETTINGS: dict[str, dict[str, str]] = {
 def render(dataset: Path, frames: int, out: Path) -> None:
     """Child: render the dataset's first ``frames`` recorded frames; every kind to ``out/<kind>.npy``."""
     from babblegen.config import RunConfig
-    from babblegen.exporters.lerobot import load_dataset
-    from babblegen.exporters.sidecar import read_run_info
+    from babblegen.dataset.lerobot import load_dataset
+    from babblegen.dataset.sidecar import read_run_info
     from babblegen.tasks import get_task
     from babblegen.world.rollout import Frames
     from babblegen.world.world import World

@@ -41,10 +41,10 @@ def cpu_seconds() -> float:
 def run_one(explorer_name: str, seed: int, attempts: int, out: str, options: dict[str, Any]) -> dict:
     from collections import deque
 
-    from babblegen.assembly import build_descriptor, build_explorer
+    from babblegen.assembly import arm_info, build_descriptor, build_explorer
     from babblegen.config import RunConfig
     from babblegen.descriptors import describe_rollout
-    from babblegen.evaluation import arm_info, seeded_rollout, warm_up
+    from babblegen.evaluation import seeded_rollout, warm_up
     from babblegen.explorers.base import ask_while_possible
     from babblegen.exporters.report import diversity
     from babblegen.exporters.sidecar import start_entry

@@ -177,9 +177,10 @@ def jit_child(out: Path) -> None:
 
     import numpy as np
 
+    from babblegen.camera_views import CAMERA_PRESETS
     from babblegen.tasks import get_task
     from babblegen.world.rollout import Command
-    from babblegen.world.settings import CAMERA_PRESETS, WorldSettings
+    from babblegen.world.settings import WorldSettings
     from babblegen.world.world import World
 
     kinds = {"depth": True, "segmentation": True}

@@ -23,8 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
+from babblegen.dataset.sidecar import read_attempts
 from babblegen.exporters.report_measures import diversity
-from babblegen.exporters.sidecar import read_attempts
 from babblegen.worldmodel.episodes import STRATA, outcomes, read_dataset
 
 NEAR = 0.01  # metres: mean distance between two tool paths that makes them near-duplicates

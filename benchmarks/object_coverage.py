@@ -17,8 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
+from babblegen.dataset.sidecar import read_attempts, read_run_info
 from babblegen.exporters.report_measures import diversity
-from babblegen.exporters.sidecar import read_attempts, read_run_info
 
 MOVED = 0.01  # metres
 TOPPLED = np.radians(30)

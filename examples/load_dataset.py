@@ -24,7 +24,7 @@ import torch
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
 from PIL import Image
 
-from babblegen.exporters.sidecar import read_attempts
+from babblegen.dataset.sidecar import read_attempts
 
 HEAD = "observation.images.head"
 

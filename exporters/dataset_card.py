@@ -7,7 +7,10 @@ import json
 from pathlib import Path
 from typing import Any
 
-from babblegen.store import Sink, atomic_write, read_run_info
+from babblegen.dataset.lerobot import read_dataset_info
+from babblegen.dataset.sidecar import read_run_info
+from babblegen.objects import HELDOUT_SHAPES, VARIED_SHAPES, ObjectRanges
+from babblegen.store import Sink, atomic_write
 
 CARD = "README.md"
 LICENSE = "mit"  # babblegen's license; the data is simulated, nobody else's recording
@@ -94,8 +97,6 @@ def starts_text(cfg: dict[str, Any]) -> str:
 
 def objects_text(cfg: dict[str, Any]) -> str:
     """Which objects stood on the table, and the distribution drawn ones came from (``world.objects``)."""
-    from babblegen.objects import HELDOUT_SHAPES, VARIED_SHAPES, ObjectRanges
-
     world = cfg.get("world") or {}
     kind = world.get("objects", "paper")
     factors = (
@@ -137,7 +138,7 @@ def _camera_lines(info: dict[str, Any]) -> str:
 def write_card(root: Path, run_info: dict[str, Any], counters: dict[str, int]) -> Path:
     """Write (or refresh) ROOT/README.md from meta/info.json and the run's state."""
     root = Path(root)
-    info = json.loads((root / "meta" / "info.json").read_text())
+    info = read_dataset_info(root)
     atomic_write(root / CARD, card_text(info, run_info, counters).encode())
     return root / CARD
 

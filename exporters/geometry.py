@@ -7,6 +7,9 @@ from typing import Any
 
 import numpy as np
 
+from babblegen.tasks import get_robot
+from babblegen.world.kinematics import UrdfModel
+
 
 def box_footprint(box: dict[str, Any]) -> np.ndarray:
     """A (possibly rotated) box's outline seen from above: the convex hull of its corners' x, y,
@@ -25,9 +28,6 @@ def box_footprint(box: dict[str, Any]) -> np.ndarray:
 def robot_footprint(task: dict[str, Any]) -> np.ndarray:
     """Corners of the robot base's largest box seen from above (x, y); a 0.6 m square when the base has
     no box."""
-    from babblegen.tasks import get_robot
-    from babblegen.world.kinematics import UrdfModel
-
     robot = get_robot(task.get("robot_uid", "pr2_like_arm"))
     boxes = [s for s in UrdfModel.load(robot.urdf).links.get(robot.base_link, []) if s.kind == "box"]
     if not boxes:

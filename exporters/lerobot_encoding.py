@@ -4,7 +4,7 @@ The expensive part of writing a LeRobot episode is per-episode work that does no
 lands in the dataset: encoding its video and computing its statistics. `encode_episode` does that as LeRobot's
 recording path does (``encode_video_frames`` with the run's codec, :func:`video_encoder`; ``compute_episode_stats``),
 in the worker that ran the rollout, so one coordinator can append the episodes of many workers (see
-``exporters/lerobot.py``). The statistics are LeRobot's, computed for less (``exporters/lerobot_stats.py``).
+``exporters/lerobot_writer.py``). The statistics are LeRobot's, computed for less (``exporters/lerobot_stats.py``).
 What depends on the position (frame and episode indexes) is left to the coordinator.
 """
 
@@ -19,8 +19,8 @@ from pathlib import Path
 import numpy as np
 
 from babblegen.config import RunConfig
+from babblegen.dataset.schema import HEAD, OBJECT_CONTACTS, image_sources
 from babblegen.exporters.lerobot_codecs import depth_encoder, encoder_options, video_encoder
-from babblegen.exporters.lerobot_schema import HEAD, OBJECT_CONTACTS, image_sources
 from babblegen.exporters.lerobot_stats import image_stats, numeric_stats
 from babblegen.world.rollout import Frames
 

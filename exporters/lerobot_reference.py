@@ -1,7 +1,7 @@
 """LeRobot's own per-episode writer (``add_frame`` + ``save_episode``, its default settings but for the video
 encoder's), kept as the reference.
 
-babblegen writes its datasets with the segment writer in ``exporters/lerobot.py``, which appends episodes
+babblegen writes its datasets with the segment writer in ``exporters/lerobot_writer.py``, which appends episodes
 encoded in the workers. This module writes the same frames the way LeRobot's recording tools do; the tests
 require both to give the same dataset, and ``benchmarks/bench_writer.py`` compares their cost.
 """
@@ -12,10 +12,10 @@ from pathlib import Path
 
 import numpy as np
 
-from babblegen.exporters.lerobot import import_lerobot
+from babblegen.dataset.lerobot import import_lerobot
+from babblegen.dataset.schema import image_sources
 from babblegen.exporters.lerobot_codecs import ENCODER_THREADS, depth_encoder, video_encoder
 from babblegen.exporters.lerobot_encoding import DEFAULT_VIDEO_CODEC, camera_images
-from babblegen.exporters.lerobot_schema import image_sources
 from babblegen.world.rollout import Frames
 
 

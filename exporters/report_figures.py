@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .geometry import box_footprint, robot_footprint
 from .report_measures import Run
 
 FIGURES = {
@@ -33,8 +34,6 @@ def _top_view_background(ax, run: Run) -> None:
     run that draws its objects); x forward is up, the robot's left (+y) is on the left, as in the paper's views
     from above."""
     from matplotlib.patches import Circle, Polygon, Rectangle
-
-    from .geometry import box_footprint, robot_footprint
 
     t = run.task["table"]
     (cx, cy, _), (hx, hy, _) = t["center"], t["half_extents"]

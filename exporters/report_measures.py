@@ -17,8 +17,10 @@ from typing import Any
 import numpy as np
 
 from babblegen.contact_events import had_object_contact
+from babblegen.dataset.paths import CLONES
+from babblegen.dataset.sidecar import read_attempts, read_run_info
 
-from .sidecar import CLONES, read_attempts, read_run_info
+from .rerun.scene import SLOT_COLORS
 
 CELL = 0.02  # metres: the grid of the spread measure
 OUTCOME_GRID = 0.01  # metres: two outcomes differ when some object's final xy falls in another 1 cm cell
@@ -76,8 +78,6 @@ class Run:
 
 def _slot_color(i: int) -> tuple[float, float, float]:
     """A slot's colour in a run that draws its objects: the one the Rerun recordings give it."""
-    from .rerun.scene import SLOT_COLORS
-
     return tuple(c / 255 for c in SLOT_COLORS[i % len(SLOT_COLORS)][:3])  # type: ignore[return-value]
 
 

@@ -1,8 +1,8 @@
-"""The sidecar beside LeRobot's meta/: one JSON line per attempted movement, infeasible ones included.
+"""Writing the sidecar beside LeRobot's meta/: one JSON line per attempted movement, infeasible ones included.
 
 Append-only and flushed per row, so it survives a crash up to the last complete line; the run's commit
 record stores the byte offset it agrees with, and resume truncates to it. Fields are documented in
-docs/dataset.md ("The sidecar table").
+docs/dataset.md ("The sidecar table"); `babblegen.dataset.sidecar` reads them back.
 """
 
 from __future__ import annotations
@@ -16,19 +16,11 @@ from typing import Any
 import numpy as np
 
 from babblegen.contact_events import contact_events
-from babblegen.store import (  # noqa: F401  (the sidecar's file names, re-exported for readers)
-    CHECKPOINT,
-    PREVIOUS_CHECKPOINT,
-    RUN_INFO,
-    SIDECAR_DIR,
-    AttemptRecord,
-    Sink,
-    read_run_info,
-    sidecar_dir,
-)
+from babblegen.dataset.paths import ATTEMPTS, CLONES, sidecar_dir
 
-ATTEMPTS = "attempts.jsonl"
-CLONES = "clones.jsonl"  # children that repeated a genome already tried and reused its outcome
+# the old paths of the reader, kept until babblegen/worldmodel/ reads through babblegen.dataset
+from babblegen.dataset.sidecar import read_attempts, read_run_info  # noqa: F401
+from babblegen.store import AttemptRecord, Sink
 
 
 class AttemptLog:
@@ -57,20 +49,6 @@ class AttemptLog:
     def truncate(path: Path, offset: int) -> None:
         with open(path, "a+b") as f:
             f.truncate(offset)
-
-
-def read_attempts(root: str | Path, table: str = ATTEMPTS) -> list[dict[str, Any]]:
-    """All complete rows of a dataset's sidecar table (a torn last line is ignored); ``table=CLONES`` reads
-    the clones (an empty list for datasets made before clones were recorded)."""
-    rows = []
-    path = sidecar_dir(root) / table
-    if table != ATTEMPTS and not path.exists():
-        return rows
-    with open(path, "rb") as f:
-        for line in f:
-            if line.endswith(b"\n"):
-                rows.append(json.loads(line))
-    return rows
 
 
 class SidecarSink(Sink):

@@ -17,6 +17,7 @@ from mani_skill.utils.building.actor_builder import ActorBuilder
 from mani_skill.utils.structs import Pose
 from mani_skill.utils.structs.types import SceneConfig, SimConfig
 
+from babblegen.camera_views import CAMERA_PRESETS
 from babblegen.scene import TaskSpec
 from babblegen.shapes import Box, ObjectSpec, Part
 
@@ -111,8 +112,6 @@ class TabletopEnv(BaseEnv):
         object_specs: tuple[ObjectSpec, ...] | None = None,
         **kwargs,
     ):
-        from babblegen.world.settings import CAMERA_PRESETS
-
         self.camera_width, self.camera_height = camera_width, camera_height
         self.cameras = tuple(cameras) if cameras else (CAMERA_PRESETS["head"],)
         self._sim_freq, self._control_freq, self._pcm = sim_freq, control_freq, pcm

@@ -8,11 +8,12 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from babblegen.exporters.lerobot_schema import features, image_key
+from babblegen.camera_views import CAMERA_PRESETS
+from babblegen.dataset.schema import features, image_key
 from babblegen.tasks import get_task
 from babblegen.world.cameras import task_instance_names, view_parameters
 from babblegen.world.rollout import Command
-from babblegen.world.settings import CAMERA_PRESETS, WorldSettings
+from babblegen.world.settings import WorldSettings
 from babblegen.world.world import World
 
 pytestmark = pytest.mark.sim

@@ -18,9 +18,9 @@ from conftest import SMALL_RUN
 
 from babblegen.cli import main
 from babblegen.config import ConfigError, RunConfig, resumed_config
+from babblegen.dataset.lerobot import load_dataset, to_uint8_image
+from babblegen.dataset.sidecar import read_attempts, read_run_info
 from babblegen.descriptors import from_hex, make_descriptor
-from babblegen.exporters.lerobot import load_dataset, to_uint8_image
-from babblegen.exporters.sidecar import read_attempts, read_run_info
 from babblegen.novelty import hamming
 
 SMALL = SMALL_RUN  # one worker: the datasets are compared with in-process runs
@@ -178,6 +178,19 @@ def test_resume_of_a_run_that_stopped_while_starting_says_to_run_it_without_resu
     assert list(out.iterdir()) == []
 
 
+def test_a_stop_during_the_console_scripts_imports_ends_the_run_before_it_writes_anything(tmp_path, capsys):
+    """The console script records a signal from its first line on (`babblegen.console`); the run then stops as
+    soon as it starts, before any part of it is built."""
+    from babblegen.interrupts import Interrupts
+
+    out = tmp_path / "never"
+    with Interrupts(raising=False):
+        os.kill(os.getpid(), signal.SIGTERM)
+        assert main(["generate", "--out", str(out), *SMALL]) == 130
+    assert "interrupted before the first episode was written; nothing was written" in capsys.readouterr().err
+    assert list(out.iterdir()) == []
+
+
 @pytest.mark.parametrize(
     ("flags", "message"),
     [
@@ -290,11 +303,30 @@ def test_killed_before_its_first_commit_point_a_run_starts_afresh_on_resume(smal
 
 @pytest.mark.sim
 def test_sigterm_leaves_a_dataset_that_loads(tmp_path):
+    """The SIGTERM lands where a stop once ended the run with exit status 1: in the run's own process (one worker),
+    inside SAPIEN's URDF parser (every scene rebuild runs it), which re-raises whatever it catches as a ValueError."""
     out = tmp_path / "term"
-    proc = _spawn(out, "--seed", "2", "--max-attempts", "200", "--checkpoint-every", "100")
-    _wait_for_rows(out, 14, proc)
-    proc.send_signal(signal.SIGTERM)
-    assert proc.wait(timeout=120) == 130
+    flags = [*SMALL, "--seed", "2", "--max-attempts", "200", "--checkpoint-every", "100"]
+    script = (
+        "import os, signal, sys\n"
+        "from pathlib import Path\n"
+        "from sapien.wrapper.urchin import urdf\n"
+        f"rows = Path({str(out)!r}) / 'babblegen' / 'attempts.jsonl'\n"
+        "parse, sent = urdf.URDFType._parse_attrib.__func__, []\n"
+        "def parse_and_stop(cls, kind, value):\n"
+        "    required = sys._getframe(1).f_locals.get('r')  # parsed inside `except Exception: raise ValueError`\n"
+        "    if required and not sent and rows.exists() and rows.read_bytes().count(b'\\n') >= 14:\n"
+        "        sent.append(os.kill(os.getpid(), signal.SIGTERM))\n"
+        "    return parse(cls, kind, value)\n"
+        "urdf.URDFType._parse_attrib = classmethod(parse_and_stop)\n"
+        "from babblegen.cli import entry_point\n"
+        f"sys.argv = ['babblegen', 'generate', '--out', {str(out)!r}, *{flags!r}]\n"
+        "entry_point()\n"
+    )
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=900)
+    printed = proc.stdout + proc.stderr
+    assert proc.returncode == 130, printed
+    assert "Traceback" not in printed and "resume with: babblegen generate --out" in printed, printed
     rows = read_attempts(out)
     executed = [r for r in rows if r["feasible"]]
     ds = load_dataset(out, read_run_info(out)["repo_id"])
@@ -311,8 +343,9 @@ def test_ctrl_c_in_a_terminal_stops_a_run_with_workers_quietly(tmp_path):
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, start_new_session=True)
     _wait_for_rows(out, 14, proc)
     os.killpg(proc.pid, signal.SIGINT)
-    assert proc.wait(timeout=120) == 130
+    code = proc.wait(timeout=120)
     printed = proc.stdout.read().decode()
+    assert code == 130, printed
     assert "Traceback" not in printed and "died" not in printed and "leaked" not in printed, printed
     assert "resume with: babblegen generate --out" in printed
     ds = load_dataset(out, read_run_info(out)["repo_id"])
@@ -556,8 +589,10 @@ def test_a_run_stored_by_the_generational_version_resumes_as_the_same_search():
 
 
 @pytest.mark.sim
-def test_ctrl_c_while_a_run_starts_exits_130_with_one_line(tmp_path):
-    """Ctrl-C during the seconds of start-up (imports, workers warming up) stops at once, without a traceback."""
+@pytest.mark.parametrize("group", [True, False], ids=["ctrl-c to the group", "sigterm to the run"])
+def test_a_stop_while_a_run_starts_exits_130_with_one_line_and_writes_nothing(tmp_path, group):
+    """Ctrl-C (SIGINT to the process group) or SIGTERM during the seconds of start-up (imports, workers warming
+    up) stops at once, without a traceback; SIGTERM used to kill the run there (no handler yet)."""
     out = tmp_path / "early"
     cmd = [sys.executable, "-m", "babblegen.cli", "generate", "--out", str(out), *SMALL]
     cmd[cmd.index("--workers") + 1] = "2"
@@ -567,13 +602,30 @@ def test_ctrl_c_while_a_run_starts_exits_130_with_one_line(tmp_path):
         assert proc.poll() is None
         time.sleep(0.05)
     time.sleep(0.5)  # they are importing their libraries (seconds), where a Ctrl-C printed tracebacks
-    os.killpg(proc.pid, signal.SIGINT)
+    os.killpg(proc.pid, signal.SIGINT) if group else proc.send_signal(signal.SIGTERM)
     started = time.monotonic()
-    assert proc.wait(timeout=60) == 130
-    assert time.monotonic() - started < 10  # workers still warming up are not waited for
+    code = proc.wait(timeout=60)
     printed = proc.stdout.read().decode()
+    assert code == 130, printed
+    assert time.monotonic() - started < 10  # workers still warming up are not waited for
     assert "Traceback" not in printed and "leaked" not in printed, printed
-    assert "babblegen: interrupted before the first attempt" in printed
+    assert "babblegen: interrupted before the first episode was written; nothing was written" in printed, printed
+    assert list(out.iterdir()) == []
+
+
+@pytest.mark.sim
+def test_a_stop_after_the_dataset_opened_but_before_its_first_episode_leaves_nothing(tmp_path, capsys, monkeypatch):
+    """LeRobot loads no dataset of no episode: what the run made is removed, and the directory is left as found."""
+    from babblegen.run import Run
+
+    def stopped(self, bar):
+        assert (tmp_path / "ds" / "babblegen" / "run.json").exists() and (tmp_path / "ds" / "meta").exists()
+        os.kill(os.getpid(), signal.SIGTERM)
+
+    monkeypatch.setattr(Run, "_loop", stopped)
+    assert generate(tmp_path / "ds") == 130
+    assert "interrupted before the first episode was written; nothing was written" in capsys.readouterr().err
+    assert list((tmp_path / "ds").iterdir()) == []
 
 
 def _spawned_workers(pid: int) -> list[int]:
@@ -591,15 +643,16 @@ def _spawned_workers(pid: int) -> list[int]:
     ("max_attempts", "counts"),
     [(0, "gen"), (600, "attempt"), (2000 * 128 - 1, "attempt"), (2000 * 128, "gen"), (10**6, "gen")],
 )
-def test_the_progress_bar_counts_what_ends_the_run(tmp_path, max_attempts, counts):
+def test_the_progress_bar_counts_what_ends_the_run(max_attempts, counts):
     """With the default generations (2,000 of at most 128 new movements) at most 256,000 movements are
     attempted: a larger --max-attempts cannot end the run, and a bar counting to it would promise days too many
     (0: no limit, the generations end the run)."""
     from babblegen.config import RunConfig
-    from babblegen.run import Run
+    from babblegen.progress import Progress
 
-    run = Run.start(tmp_path / "ds", RunConfig(max_attempts=max_attempts))
-    bar = run._progress_bar(enabled=True)
+    config = RunConfig(max_attempts=max_attempts)
+    config.validate()
+    bar = Progress(config, dict.fromkeys(("attempts", "generations"), 0), explorer=None).bar
     try:
         assert bar.unit == counts
         assert bar.total == (max_attempts if counts == "attempt" else 2000)
@@ -637,8 +690,9 @@ def test_an_error_in_the_coordinator_stops_the_workers_without_their_tracebacks(
 
 def _config_from_flags(*flags: str, toml: str | None = None, tmp_path: Path | None = None) -> RunConfig:
     """The configuration `generate` would run with (defaults < TOML < flags), without running it."""
-    from babblegen.cli import _camera_overrides, _overrides, build_parser
+    from babblegen.cli import build_parser
     from babblegen.config import load_toml, merge
+    from babblegen.generate_flags import camera_overrides, overrides
 
     args = build_parser().parse_args(["generate", "--out", "x", *flags])
     data = {}
@@ -646,8 +700,8 @@ def _config_from_flags(*flags: str, toml: str | None = None, tmp_path: Path | No
         path = tmp_path / "run.toml"
         path.write_text(toml)
         data = load_toml(path)
-    data = merge(data, _overrides(args))
-    _camera_overrides(args, data)
+    data = merge(data, overrides(args))
+    camera_overrides(args, data)
     return RunConfig.from_dict(data)
 
 

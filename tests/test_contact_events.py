@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from babblegen.contact_events import contact_events, contact_pairs, had_object_contact, pair_names
+from babblegen.dataset.schema import OBJECT_CONTACTS, features
 from babblegen.exporters.lerobot_encoding import frame_columns
-from babblegen.exporters.lerobot_schema import OBJECT_CONTACTS, features
 from babblegen.exporters.report_measures import object_contacts
 from babblegen.exporters.sidecar import attempt_row
 from babblegen.tasks import get_task

@@ -218,7 +218,7 @@ def test_one_object_pushed_into_another_is_a_contact_event(worlds):
 
     # reusing sleeping objects' impulses records what reading every contact records, to the bit
     scan = w._touching
-    w._touching = lambda: (w._asleep.clear(), scan())[1]
+    w._touching = lambda: (w._contacts.asleep.clear(), scan())[1]
     try:
         again = seeded_rollout(
             w, Command("ee_waypoints", np.asarray(waypoints), layout), seed, attempt, defer_render=True

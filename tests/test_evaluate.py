@@ -46,7 +46,7 @@ def test_every_source_is_scored_at_equal_attempts_and_episodes(evaluation, small
 
 
 def test_an_attempt_budget_cuts_each_dataset_to_its_first_attempts(small_noveb_dataset):
-    from babblegen.exporters.sidecar import read_attempts
+    from babblegen.dataset.sidecar import read_attempts
     from babblegen.worldmodel.episodes import read_dataset
 
     data = read_dataset(small_noveb_dataset)
@@ -199,7 +199,7 @@ def varied_objects_dataset(tmp_path_factory) -> Path:
 def test_varied_objects_are_read_per_episode_and_planned_with(varied_objects_dataset):
     """Each episode's objects come from its sidecar row; planning executes the goal episode's genome from its start
     with its objects and ends exactly where the recorded episode ended, every object."""
-    from babblegen.exporters.sidecar import read_attempts
+    from babblegen.dataset.sidecar import read_attempts
     from babblegen.shapes import ObjectSpec
     from babblegen.worldmodel.episodes import object_vector, read_dataset
     from babblegen.worldmodel.planning import PlanningSettings, build_task

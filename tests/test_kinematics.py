@@ -274,7 +274,7 @@ def test_planner_direct_when_free(world):
 def test_the_explorers_reach_test_is_the_planners(world):
     """`arm_info`'s ``in_reach`` (from the URDF alone, on normalised waypoints) refuses exactly the waypoints the
     planner would refuse as out of reach, so a redrawn mutation never spends an attempt on one."""
-    from babblegen.evaluation import arm_info
+    from babblegen.assembly import arm_info
 
     w = world
     in_reach = arm_info(w.task)["in_reach"]

@@ -1,6 +1,6 @@
 """The segment writer against LeRobot's own writer: the same frames give the same dataset.
 
-babblegen appends episodes encoded in its workers and writes them in segments (exporters/lerobot.py); LeRobot's
+babblegen appends episodes encoded in its workers and writes them in segments (exporters/lerobot_writer.py); LeRobot's
 recording path is ``add_frame`` + ``save_episode`` with its default settings (exporters/lerobot_reference.py). A
 user loading either with ``LeRobotDataset`` must get the same frames, images, episode table, info and statistics.
 """
@@ -13,10 +13,12 @@ import numpy as np
 import pytest
 
 from babblegen.config import VIDEO_CODECS
-from babblegen.exporters.lerobot import SegmentWriter, features, load_dataset, rollback, snapshot
+from babblegen.dataset.lerobot import load_dataset
+from babblegen.dataset.schema import HEAD, features
+from babblegen.exporters.lerobot import rollback, snapshot
 from babblegen.exporters.lerobot_encoding import encode_episode
 from babblegen.exporters.lerobot_reference import ReferenceWriter
-from babblegen.exporters.lerobot_schema import HEAD
+from babblegen.exporters.lerobot_writer import SegmentWriter
 from babblegen.world.rollout import Frames
 
 FPS, SIDE = 10, 64
@@ -182,7 +184,7 @@ def test_depth_and_masks_come_back_as_rendered(datasets):
     _, ours = datasets
     if "observation.images.front_depth" not in ours.meta.features:
         pytest.skip("the head camera's colour alone")
-    from babblegen.exporters.lerobot import load_dataset
+    from babblegen.dataset.lerobot import load_dataset
 
     in_metres = load_dataset(ours.root, "test/segments", depth_output_unit="m")
     frames = [synthetic_frames(n, seed, "views") for seed, n in enumerate(LENGTHS)]
@@ -224,8 +226,8 @@ def test_the_data_table_is_byte_for_byte_the_one_hugging_face_encodes():
     import pyarrow.parquet as pq
     from lerobot.datasets.feature_utils import get_hf_features_from_features
 
-    from babblegen.exporters.lerobot import arrow_table
-    from babblegen.exporters.lerobot_schema import with_default_features
+    from babblegen.dataset.schema import with_default_features
+    from babblegen.exporters.lerobot_writer import arrow_table
 
     hf = get_hf_features_from_features(with_default_features(features(JOINTS, OBJECTS, SIDE, SIDE)))
     rng = np.random.default_rng(3)
@@ -251,7 +253,7 @@ def test_the_data_table_is_byte_for_byte_the_one_hugging_face_encodes():
 def test_a_dataset_written_before_object_contacts_takes_episodes_that_record_them(tmp_path):
     """A run resumed from a dataset made before ``observation.object_contacts``: its episodes keep the dataset's own
     features (the new column and its statistics left out), and it loads."""
-    from babblegen.exporters.lerobot_schema import OBJECT_CONTACTS
+    from babblegen.dataset.schema import OBJECT_CONTACTS
 
     old = {k: v for k, v in features(JOINTS, OBJECTS, SIDE, SIDE).items() if k != OBJECT_CONTACTS}
     writer = SegmentWriter.create(tmp_path / "old", "test/old", FPS, old, "pr2_arm", "h264")

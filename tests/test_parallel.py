@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 
 from babblegen.cli import main
+from babblegen.dataset.lerobot import load_dataset
+from babblegen.dataset.sidecar import read_attempts, read_run_info
 from babblegen.evaluation import LocalEvaluator, Preparers
-from babblegen.exporters.lerobot import load_dataset
-from babblegen.exporters.sidecar import read_attempts, read_run_info
 from babblegen.parallel import ProcessEvaluator, RayEvaluator
 from babblegen.tasks import get_task
 from babblegen.world.rollout import Command

@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 
 from babblegen.cli import main
-from babblegen.exporters.lerobot import load_dataset
+from babblegen.dataset.lerobot import load_dataset
+from babblegen.dataset.sidecar import read_attempts, read_run_info
 from babblegen.exporters.report import FIGURES, START_FIGURE
-from babblegen.exporters.sidecar import read_attempts, read_run_info
 
 
 @pytest.fixture(scope="module")

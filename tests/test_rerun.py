@@ -17,9 +17,9 @@ import pytest
 from rerun.chunk import RrdReader
 
 from babblegen.cli import main
-from babblegen.exporters.lerobot import load_dataset
+from babblegen.dataset.lerobot import load_dataset
+from babblegen.dataset.sidecar import read_attempts, read_run_info
 from babblegen.exporters.rerun import INDEX, RerunSink, recording_files
-from babblegen.exporters.sidecar import read_attempts, read_run_info
 from babblegen.tasks.pr2_arm import ARM_JOINTS
 from babblegen.world.rollout import Command, Frames, Rollout
 

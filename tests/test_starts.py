@@ -10,8 +10,8 @@ from babblegen.config import ConfigError, RunConfig, resumed_config
 from babblegen.descriptors import ChangePHash, describe_rollout, make_descriptor
 from babblegen.explorers import make_explorer
 from babblegen.explorers.base import genome_key
-from babblegen.scene import TaskSpec
-from babblegen.starts import Start, StartSampler, layout_poses
+from babblegen.scene import TaskSpec, layout_poses
+from babblegen.starts import Start, StartSampler
 from babblegen.tasks import get_task
 
 START = np.array([0.5, 0.0, 0.5])

@@ -10,7 +10,8 @@ import pytest
 
 from babblegen import state_file
 from babblegen.config import ConfigError
-from babblegen.store import CHECKPOINT, PREVIOUS_CHECKPOINT, AttemptRecord, RunStore, Sink
+from babblegen.dataset.paths import CHECKPOINT, PREVIOUS_CHECKPOINT
+from babblegen.store import AttemptRecord, RunStore, Sink
 
 
 class ListSink(Sink):

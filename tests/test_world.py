@@ -233,7 +233,8 @@ def test_fixed_start_is_the_task_scene_exactly(world, push):
 
 
 def test_varied_starts_settle_in_their_layout_and_record_changes_from_their_own_start(world):
-    from babblegen.starts import StartSampler, layout_poses
+    from babblegen.scene import layout_poses
+    from babblegen.starts import StartSampler
 
     w, sampler = world, StartSampler(world.task, seed=4)
     radius = np.array([o.footprint_radius for o in w.task.objects])

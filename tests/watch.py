@@ -17,7 +17,7 @@ class WatchedWorld(World):
 
     def _touching(self) -> np.ndarray:
         touched = super()._touching()
-        object_of = self._object_of_body
+        object_of = self._contacts.object_of_body
         for contact in self.sim.scene.px.get_contacts():
             a, b = (object_of.get(body) for body in contact.bodies)
             if a is None and b is None:

@@ -6,12 +6,13 @@ from __future__ import annotations
 import contextlib
 import logging
 import multiprocessing as mp
-import signal
 import threading
 from dataclasses import dataclass, field
+from multiprocessing import resource_tracker
 from multiprocessing.connection import wait
 
 from babblegen.evaluation import Describe, Prepare
+from babblegen.interrupts import spawning
 from babblegen.parallel.scheduler import Failure, PoolEvaluator
 from babblegen.parallel.worker import worker_main
 from babblegen.scene import TaskSpec
@@ -19,20 +20,6 @@ from babblegen.world.rollout import Command, Rollout
 from babblegen.world.settings import WorldSettings
 
 log = logging.getLogger(__name__)
-
-
-@contextlib.contextmanager
-def _ctrl_c_ignored():
-    """Ignore SIGINT in this process meanwhile (from the main thread only, where Python allows it): a process
-    spawned then starts with it ignored, and Python installs no KeyboardInterrupt handler in it."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGINT, previous)
 
 
 @dataclass
@@ -73,7 +60,14 @@ class ProcessEvaluator(PoolEvaluator):
         self._arrived = threading.Condition()
         self._wake_reader, self._wake_writer = mp.Pipe(duplex=False)
         self.ctx = mp.get_context("spawn")
-        self.workers = [self._spawn() for _ in range(n)]  # they start in the background: see `wait_ready`
+        self.workers: list[_Worker] = []
+        try:
+            for _ in range(n):  # they start in the background: see `wait_ready`
+                self.workers.append(self._spawn())
+        except BaseException:  # a stop (or an error) while spawning: none is left starting for nobody
+            for w in self.workers:
+                w.process.kill()
+            raise
         self._starting = list(self.workers)
 
     def wait_ready(self) -> None:
@@ -96,9 +90,18 @@ class ProcessEvaluator(PoolEvaluator):
             args=(child, self.task.name, self.settings, self.run_seed, self.prepare, self.describe),
             daemon=True,
         )
-        with _ctrl_c_ignored():  # inherited: a Ctrl-C while the worker imports its libraries prints no traceback
-            p.start()
-        child.close()
+        # Starting multiprocessing's resource tracker (the first spawn does) unblocks SIGINT and SIGTERM in this
+        # thread: done before, so that the worker is started with both blocked
+        resource_tracker.ensure_running()
+        try:
+            with spawning():  # it never acts on SIGINT / SIGTERM, not even while it imports its libraries
+                p.start()
+        except BaseException:  # a stop, held until it was started: it is not left warming up for nobody
+            if p.pid is not None:
+                p.kill()
+            raise
+        finally:
+            child.close()
         return _Worker(p, parent)
 
     def _await_ready(self, w: _Worker, timeout: float = 600.0) -> None:

@@ -15,6 +15,7 @@ import time
 
 from babblegen.config import ConfigError
 from babblegen.evaluation import Describe, Prepare
+from babblegen.fingerprint import finish_subprocess, start_in_subprocess
 from babblegen.parallel.scheduler import Failure, PoolEvaluator
 from babblegen.scene import TaskSpec
 from babblegen.world.rollout import Command, Rollout
@@ -42,9 +43,7 @@ class RayEvaluator(PoolEvaluator):
         describe: Describe | None = None,
         allow_mixed: bool = False,
     ):
-        import ray
-
-        from babblegen.fingerprint import finish_subprocess, start_in_subprocess
+        import ray  # an optional dependency
 
         self.ray = ray
         self.allow_mixed, self.other_machines = allow_mixed, {}

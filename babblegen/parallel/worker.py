@@ -9,9 +9,12 @@ import sys
 import traceback
 from collections.abc import Iterator
 
-from babblegen.evaluation import Describe, Prepare
+from babblegen.evaluation import Describe, Prepare, render_and_prepare_stepwise, seeded_rollout, warm_up
+from babblegen.fingerprint import fingerprint
+from babblegen.tasks import get_task
 from babblegen.world.rollout import Rollout
 from babblegen.world.settings import WorldSettings
+from babblegen.world.world import World
 
 # How long a worker with episodes to prepare waits for its next rollout when more are queued, before it prepares
 # one (the coordinator answers a returned rollout with the next request in milliseconds).
@@ -41,8 +44,10 @@ def worker_main(
     reports, and a coordinator that is gone (its pipe closed: a crash, a full disk) is no error of this process's
     to print a traceback for.
     """
-    # Ctrl-C in a terminal reaches the whole process group: the coordinator stops the run and then the workers
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # (already so when spawned from the main thread)
+    # Ctrl-C in a terminal, `timeout` and batch schedulers signal the whole process group: the coordinator stops
+    # the run and then the workers (both signals are blocked already: `babblegen.interrupts.spawning`)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
     code = 0
     try:
         _serve(conn, task_name, settings, run_seed, prepare, describe)
@@ -63,11 +68,6 @@ def _serve(
     import torch
 
     torch.set_num_threads(1)  # one core per worker: idle torch threads would spin against the other processes
-    from babblegen.evaluation import render_and_prepare_stepwise, seeded_rollout, warm_up
-    from babblegen.fingerprint import fingerprint
-    from babblegen.tasks import get_task
-    from babblegen.world.world import World
-
     world = World(get_task(task_name), settings, seed=run_seed)
     try:
         warm_up(world, prepare)

@@ -14,9 +14,9 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from babblegen.camera_views import CameraView
 from babblegen.scene import TaskSpec
 from babblegen.world.exact import rigid_inverse, row_norm
-from babblegen.world.settings import CameraView
 
 
 def instance_names(object_names: Sequence[str], obstacle_names: Sequence[str] = ()) -> list[str]:

@@ -8,7 +8,6 @@ position controller, let the scene settle, and record frames at a fixed rate.
 from __future__ import annotations
 
 import gc
-import math
 import time
 from collections.abc import Iterator
 
@@ -17,12 +16,12 @@ import numpy as np
 import sapien
 import torch
 
-from babblegen.contact_events import contact_pairs
 from babblegen.objects import slot_task
-from babblegen.scene import TaskSpec
+from babblegen.scene import TaskSpec, layout_poses
 from babblegen.shapes import ObjectSpec
-from babblegen.starts import layout_poses
+from babblegen.tasks import get_robot
 from babblegen.world.cameras import CameraRig
+from babblegen.world.contacts import ContactReader
 from babblegen.world.exact import row_norm
 from babblegen.world.planning import ArmPlanner, Plan
 from babblegen.world.rollout import Command, Frames, Rollout
@@ -37,20 +36,11 @@ from babblegen.world.schedule import (
 from babblegen.world.settings import WorldSettings
 
 
-def _impulse(contact) -> tuple[float, float, float]:
-    """The sum of a contact's points' impulses (N s, world frame), as PhysX reports them on its first body."""
-    x = y = z = 0.0
-    for p in contact.points:
-        i, j, h = p.impulse.tolist()
-        x, y, z = x + i, y + j, z + h
-    return x, y, z
-
-
 class World:
     """Executes commands in a task's scene. Not thread-safe: one World per process."""
 
     def __init__(self, task: TaskSpec, settings: WorldSettings | None = None, seed: int = 0):
-        from babblegen.tasks import envs, get_robot
+        from babblegen.tasks import envs  # ManiSkill: loaded with the first World, not with this module's users
 
         envs.register_envs()  # the agents, and an env for every registered scene
         self.robot = robot = get_robot(task.robot_uid)
@@ -97,25 +87,10 @@ class World:
         ]
         self._arm = self.agent.robot._objs[0]
         self._tool = next(link for link in self._arm.links if link.entity.name == self.robot.tool_link)
-        # contact bodies as the simulator hands them back (one Python object per body): the arm's moving links,
-        # and each object's index
-        self._arm_bodies = {link for link in self._arm.links if link.entity.name != self.robot.base_link}
-        self._object_of_body = {body: i for i, body in enumerate(self._object_bodies)}
-        # the recorded pairs (`babblegen.contact_events`): the ordered bodies of a contact -> (pair, +1 in the
-        # pair's order or -1 reversed, its objects' bodies, whether a body has several shapes); each pair's impulse
-        # since the previous frame; and what `_touching` last read from each contact of sleeping objects
         static = sapien.physx.PhysxRigidStaticComponent
         statics = [a._objs[0].find_component_by_type(static) for a in (self.sim.table, self.sim.floor)]
-        parties = [*self._object_bodies, *statics]
-        self._pair_of: dict[tuple, tuple[int, float, tuple, bool]] = {}
-        for k, (a, b) in enumerate(contact_pairs(len(self._object_bodies))):
-            moving = tuple(parties[i] for i in (a, b) if i < len(self._object_bodies))
-            # a body of several shapes (a dumbbell, an ell) touches another in one contact per pair of shapes
-            several = any(len(parties[i].collision_shapes) > 1 for i in (a, b))
-            self._pair_of[parties[a], parties[b]] = (k, 1.0, moving, several)
-            self._pair_of[parties[b], parties[a]] = (k, -1.0, moving, several)
-        self._impulse_since = [0.0] * (len(self._pair_of) // 2)
-        self._asleep: dict[tuple, float | tuple[float, float, float]] = {}  # by bodies (magnitude) or shapes
+        arm_bodies = {link for link in self._arm.links if link.entity.name != self.robot.base_link}
+        self._contacts = ContactReader(self.sim, arm_bodies, self._object_bodies, statics)  # read every substep
         self._drive_joints = self._position_drives()
         self._camera = self.sim.scene.sensors["head"]
         self.cameras = CameraRig(self.sim, self.task, self.settings.cameras)
@@ -205,50 +180,9 @@ class World:
         return {name: self.cameras.read(name) for name in names}
 
     def _touching(self) -> np.ndarray:
-        """Which objects the arm touches now: a contact between a moving arm link and the object with a point
-        that pushes (non-zero impulse) or nearly touches (separation under 1 mm).
-
-        In the same scan, each recorded pair's impulse in this substep (`babblegen.contact_events`: two objects, an
-        object and the table or the floor) is added to ``_impulse_since``: the magnitude of the sum of its contact
-        points' impulses (N s; PhysX reports the normal impulse), oriented from the pair's first party. Reading
-        the points is most of the scan's cost; a contact whose objects sleep (PhysX's: at rest for 0.4 s) keeps the
-        impulses of its last solve, so once read asleep they are reused until an object wakes."""
-        touched = np.zeros(len(self._object_entities), dtype=bool)
-        arm, object_of, pair_of, asleep = self._arm_bodies, self._object_of_body, self._pair_of, self._asleep
-        since, net = self._impulse_since, {}
-        for contact in self.sim.scene.px.get_contacts():
-            a, b = bodies = tuple(contact.bodies)
-            pair = pair_of.get(bodies)
-            if pair is not None:
-                k, sign, moving, several = pair
-                sleeping = moving[0].is_sleeping and (len(moving) == 1 or moving[1].is_sleeping)
-                if several:  # one of the pair's contacts: their impulses are summed before the magnitude
-                    key = tuple(contact.shapes) if sleeping or asleep else None
-                    got = asleep.get(key) if sleeping else None
-                    if got is None:
-                        x, y, z = _impulse(contact)
-                        got = (sign * x, sign * y, sign * z)
-                    v = net.setdefault(k, [0.0, 0.0, 0.0])
-                    v[0], v[1], v[2] = v[0] + got[0], v[1] + got[1], v[2] + got[2]
-                else:  # the pair's one contact
-                    key = bodies
-                    got = asleep.get(key) if sleeping else None
-                    if got is None:
-                        got = math.hypot(*_impulse(contact))
-                    since[k] += got
-                if sleeping:
-                    asleep[key] = got
-                elif key and asleep:
-                    asleep.pop(key, None)  # awake: read afresh when it sleeps again
-                continue
-            obj = object_of.get(b) if a in arm else object_of.get(a) if b in arm else None
-            if obj is None or touched[obj]:
-                continue
-            if any(p.impulse.any() or p.separation < 1e-3 for p in contact.points):
-                touched[obj] = True
-        for k, v in net.items():
-            since[k] += math.hypot(*v)
-        return touched
+        """Which objects the arm touches now, each recorded pair's impulse added up meanwhile
+        (`ContactReader.touching`)."""
+        return self._contacts.touching()
 
     def _timed_path(self, path: np.ndarray) -> np.ndarray:
         """Joint targets at the control rate along a piecewise-linear path at max_joint_speed."""
@@ -359,10 +293,9 @@ class World:
             rec["object_poses"].append(self._object_poses().astype(np.float32))
             rec["contacts"].append(touched_since.astype(np.float32))
             touched_since = np.zeros_like(touched_since)
-            rec["object_contacts"].append(np.asarray(self._impulse_since, dtype=np.float32))
-            self._impulse_since = [0.0] * len(self._impulse_since)
+            rec["object_contacts"].append(self._contacts.take_impulses())
 
-        self._impulse_since = [0.0] * len(self._impulse_since)
+        self._contacts.take_impulses()  # counted from the first frame
         record(0, render=True)
         px = self.sim.scene.px
         touched_any = np.zeros_like(touched_since)

@@ -11,6 +11,7 @@ import numpy as np
 
 from babblegen.config import RERUN_FRAMES as FRAME_MODES  # what a run's recording logs per episode
 
+from ..lerobot_encoding import encode_png
 from .scene import CONTACT_COLOR, HEAD_IMAGE, START, TOOL_COLOR, Scene, object_parts, part_entities, quat_xyzw
 
 if TYPE_CHECKING:
@@ -36,8 +37,6 @@ def encode_view(kind: str, frames: Any, quality: int = JPEG_QUALITY) -> Any:
     """One camera's frames of one kind as the recording logs them: colour as JPEG, depth as 16-bit PNG (Rerun
     decodes it as a depth image; frames already encoded, a list of bytes, stay as they are), masks as (T, H, W)
     uint8 ids (as rendered, or read back from the dataset's 16-bit PNG)."""
-    from ..lerobot_encoding import encode_png
-
     if isinstance(frames, list):
         return frames
     if kind == "rgb":

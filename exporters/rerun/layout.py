@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any
 
+from .columns import view_entity
 from .scene import HEAD_IMAGE
 
 if TYPE_CHECKING:
@@ -27,8 +28,6 @@ def camera_views(cameras: list[dict[str, Any]] | None) -> rrb.Container | rrb.Sp
     """One 2D view per camera and kind recorded (the head camera's colour alone for runs without the setting):
     colour, depth (Rerun's depth colour map) and instance masks (named by the annotation context)."""
     import rerun.blueprint as rrb
-
-    from .columns import view_entity
 
     views = []
     for cam in cameras or [{"name": "head"}]:

@@ -13,6 +13,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from babblegen.shapes import SHAPES, ObjectSpec, hull_triangles
+from babblegen.tasks import get_robot
+from babblegen.world.cameras import instance_names, look_at_cam2world
 from babblegen.world.kinematics import ArmKinematics, Shape, UrdfModel
 
 from ..geometry import box_footprint, robot_footprint
@@ -134,8 +136,6 @@ def bounding_half_sizes(obj: dict[str, Any]) -> np.ndarray:
 
 def robot_of(task: dict[str, Any]):
     """The registered robot a task description names (the PR2-like arm for datasets that name none)."""
-    from babblegen.tasks import get_robot
-
     return get_robot(task.get("robot_uid", "pr2_like_arm"))
 
 
@@ -273,8 +273,6 @@ def log_frustum(rec: rr.RecordingStream, path: str, cam: dict[str, Any], size: t
     frustum when its image ``size`` (height, width) is known."""
     import rerun as rr
 
-    from babblegen.world.cameras import look_at_cam2world
-
     pose = look_at_cam2world(cam["eye"], cam["target"])
     rec.log(path, rr.Transform3D(translation=pose[:3, 3], mat3x3=pose[:3, :3]), static=True)
     if size is not None:
@@ -293,8 +291,6 @@ def log_cameras(rec: rr.RecordingStream, scene: Scene, cameras: list[dict[str, A
             size_here = (cam.get("height") or size[0], cam.get("width") or size[1])
             log_frustum(rec, f"world/{cam['name']}_camera", cam, size_here)
     if any(cam.get("segmentation") for cam in cameras):
-        from babblegen.world.cameras import instance_names
-
         colors = {"background": (0, 0, 0, 255), "table": TABLE_COLOR, "floor": (200, 200, 195, 255)}
         colors.update(robot=ROBOT_COLOR, **scene.colors)
         labels = [

@@ -12,9 +12,11 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from babblegen.dataset.paths import ATTEMPTS, recordings_dir, sidecar_dir
+from babblegen.dataset.sidecar import read_attempts, read_run_info
+from babblegen.interrupts import Interrupted
 from babblegen.store import AttemptRecord, Sink, atomic_write
 
-from ..sidecar import ATTEMPTS, read_attempts, read_run_info, sidecar_dir
 from .attempts import AttemptColumns, Tally
 from .columns import MAX_BUFFERED_FRAMES, EpisodeColumns, EpisodeData
 from .layout import blueprint, new_recording
@@ -23,7 +25,6 @@ from .scene import Scene, log_scene, objects_drawn
 if TYPE_CHECKING:
     import rerun as rr
 
-RERUN_DIR = "rerun"
 INDEX = "index.json"
 SEGMENT = "segment-{:05d}.rrd"
 FLUSH_TIMEOUT_S = 30.0  # a segment's flush takes well under a second; only a stuck writer (a full disk) takes this long
@@ -39,8 +40,6 @@ def _guarded(method: Callable) -> Callable:
         try:
             return method(self, *args, **kwargs)
         except Exception as e:
-            from babblegen.interrupts import Interrupted
-
             if isinstance(e, Interrupted):
                 raise
             self._disable(e)
@@ -73,7 +72,7 @@ class RerunSink(Sink):
         # gives three ERROR lines). RUST_LOG set by the user still wins.
         os.environ.setdefault("RUST_LOG", "off")
         self.out = Path(out_dir)
-        self.dir = sidecar_dir(self.out) / RERUN_DIR
+        self.dir = recordings_dir(self.out)
         self.task = task if isinstance(task, dict) else task.to_dict()
         self.joint_names = list(joint_names)
         self.enabled = True
@@ -268,7 +267,7 @@ def _writer_stuck(error: BaseException) -> bool:
 
 def recording_files(root: str | Path) -> list[Path]:
     """The run's committed recording segments, in order."""
-    d = sidecar_dir(root) / RERUN_DIR
+    d = recordings_dir(root)
     path = d / INDEX
     if not path.exists():
         return []

@@ -1,12 +1,23 @@
 """The dataset's schema: every feature babblegen writes to a LeRobot dataset, its name, shape and ``info`` (camera
-parameters, depth conventions, mask ids), as DESIGN.md and docs/dataset.md describe them."""
+parameters, depth conventions, mask ids), and the episode table's own columns, as DESIGN.md and docs/dataset.md
+describe them. Writers declare the features with it; readers find the columns by its names."""
 
 from __future__ import annotations
 
+from babblegen.contact_events import pair_names
+from babblegen.world.cameras import task_instance_names, view_parameters
+
 HEAD = "observation.images.head"
+STATE = "observation.state"  # the arm's joint positions
+ACTION = "action"  # the commanded joint positions
+EE_POS = "observation.ee_pos"  # the tool point (x, y, z)
+ENVIRONMENT_STATE = "observation.environment_state"  # every object's pose (x, y, z, qw, qx, qy, qz)
+CONTACTS = "observation.contacts"  # whether the arm touched each object since the previous frame
 OBJECT_CONTACTS = "observation.object_contacts"  # N s per pair since the previous frame (`babblegen.contact_events`)
 KINDS = ("rgb", "depth", "segmentation")
 IMAGE_NAMES = ["height", "width", "channels"]
+# an episode's objects as factors of variation: the episode table's ``objects/<slot>/<factor>`` columns
+FACTORS = ("shape", "size", "mass", "density", "static_friction", "dynamic_friction", "restitution", "color")
 
 
 def image_key(camera: str, kind: str = "rgb") -> str:
@@ -25,8 +36,6 @@ def camera_features(cameras, task, settings) -> dict:
     (LeRobot's ``is_depth_map``, in millimetres) and instance masks (16-bit PNG, an ``ids`` map from id to name),
     each with the camera's ``intrinsics`` (3x3, pixels) and, for a camera that does not move, ``cam2world``
     (4x4, OpenCV axes: x right, y down, z forward, in the world frame); a moving camera's pose per frame."""
-    from babblegen.world.cameras import task_instance_names, view_parameters
-
     out: dict = {}
     ids = dict(enumerate(task_instance_names(task)))
     for view in cameras:
@@ -80,8 +89,6 @@ def features(
     head camera's colour video alone, as runs stored before cameras were a setting), joints, commanded joints,
     tool point, objects, the arm's contacts, and the contact impulses between objects, the table and the floor
     (`babblegen.contact_events`)."""
-    from babblegen.contact_events import pair_names
-
     pose_fields = ("x", "y", "z", "qw", "qx", "qy", "qz")
     if cameras is None:
         images = {HEAD: {"dtype": "video", "shape": (height, width, 3), "names": IMAGE_NAMES}}
@@ -92,15 +99,15 @@ def features(
     return {
         **images,
         **poses,
-        "observation.state": {"dtype": "float32", "shape": (len(joint_names),), "names": list(joint_names)},
-        "action": {"dtype": "float32", "shape": (len(joint_names),), "names": list(joint_names)},
-        "observation.ee_pos": {"dtype": "float32", "shape": (3,), "names": ["x", "y", "z"]},
-        "observation.environment_state": {
+        STATE: {"dtype": "float32", "shape": (len(joint_names),), "names": list(joint_names)},
+        ACTION: {"dtype": "float32", "shape": (len(joint_names),), "names": list(joint_names)},
+        EE_POS: {"dtype": "float32", "shape": (3,), "names": ["x", "y", "z"]},
+        ENVIRONMENT_STATE: {
             "dtype": "float32",
             "shape": (7 * len(object_names),),
             "names": [f"{o}.{f}" for o in object_names for f in pose_fields],
         },
-        "observation.contacts": {
+        CONTACTS: {
             "dtype": "float32",
             "shape": (len(object_names),),
             "names": list(object_names),
@@ -118,3 +125,9 @@ def with_default_features(feats: dict) -> dict:
     from lerobot.utils.constants import DEFAULT_FEATURES
 
     return {**feats, **DEFAULT_FEATURES}
+
+
+def object_columns(objects: list[dict]) -> dict:
+    """An episode's objects (a sidecar row's ``objects``) as columns of the episode table:
+    ``objects/<slot>/<factor>`` for every factor of `FACTORS` (a hull's points stay in the sidecar)."""
+    return {f"objects/{o['name']}/{factor}": o[factor] for o in objects for factor in FACTORS}
