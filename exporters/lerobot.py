@@ -14,8 +14,6 @@ import shutil
 import time
 from pathlib import Path
 
-# load_dataset: the old path, kept until babblegen/worldmodel/ reads through babblegen.dataset
-from babblegen.dataset.lerobot import load_dataset  # noqa: F401
 from babblegen.dataset.schema import object_columns
 from babblegen.exporters.lerobot_encoding import DEFAULT_VIDEO_CODEC, encode_episode
 from babblegen.exporters.lerobot_writer import SEGMENT_TMP, SegmentWriter

@@ -17,9 +17,6 @@ import numpy as np
 
 from babblegen.contact_events import contact_events
 from babblegen.dataset.paths import ATTEMPTS, CLONES, sidecar_dir
-
-# the old paths of the reader, kept until babblegen/worldmodel/ reads through babblegen.dataset
-from babblegen.dataset.sidecar import read_attempts, read_run_info  # noqa: F401
 from babblegen.store import AttemptRecord, Sink
 
 

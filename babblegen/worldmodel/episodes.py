@@ -17,10 +17,14 @@ from pathlib import Path
 import numpy as np
 
 from babblegen.config import ConfigError
+from babblegen.dataset import schema
+from babblegen.dataset.lerobot import load_dataset
+from babblegen.dataset.paths import ATTEMPTS, sidecar_dir
+from babblegen.dataset.sidecar import read_attempts
 from babblegen.shapes import SHAPES, SURFACE_POINTS, ObjectSpec
 from babblegen.worldmodel.poses import tilt_of
 
-ACTION, STATE, POSES = "action", "observation.state", "observation.environment_state"
+ACTION, STATE, POSES = schema.ACTION, schema.STATE, schema.ENVIRONMENT_STATE
 COLUMNS = (ACTION, STATE, POSES)
 MOVED = 0.01  # metres of 3-D displacement, first frame to last: an object "moves" (the sidecar's and report's 1 cm)
 TOPPLED = np.deg2rad(30.0)  # an object whose up axis ends tilted more than this from its start is toppled
@@ -265,8 +269,6 @@ def identity_key(row: dict) -> str:
 def read_dataset(root: Path) -> Dataset:
     """A dataset's executed episodes, read with LeRobot's loader; a missing, empty or unsuitable dataset is an
     `EvaluationError` naming what is missing."""
-    from babblegen.exporters.sidecar import ATTEMPTS, read_attempts, sidecar_dir
-
     root = Path(root)
     if not root.is_dir():
         raise EvaluationError(f"{root}: no such dataset directory")
@@ -344,8 +346,6 @@ def _read_columns(root: Path, repo_id: str) -> dict:
     """The frame table's columns the evaluation reads, through LeRobot's loader (offline)."""
     os.environ.setdefault("HF_HUB_OFFLINE", "1")
     import datasets
-
-    from babblegen.exporters.lerobot import load_dataset
 
     datasets.disable_progress_bars()
     ds = load_dataset(root, repo_id)

@@ -197,7 +197,7 @@ def contact_flags(test: EpisodeSet) -> tuple[np.ndarray, np.ndarray]:
     whether the object met another object in a contact that began during the episode (``object_contacts``; all
     False for a dataset recorded without them)."""
     from babblegen.contact_events import SEPARATOR, is_object_pair
-    from babblegen.exporters.sidecar import read_attempts
+    from babblegen.dataset.sidecar import read_attempts
 
     rows = {}
     for root in sorted(set(test.source.tolist())):
@@ -456,7 +456,7 @@ _commanders: dict = {}
 
 def _config(root: str):
     from babblegen.config import resumed_config
-    from babblegen.exporters.sidecar import read_run_info
+    from babblegen.dataset.sidecar import read_run_info
 
     return resumed_config(read_run_info(Path(root))["config"])
 
