@@ -120,7 +120,7 @@ def register(sub) -> None:
         type=int,
         default=None,
         help="at most this many gradient steps per model, stopped early on its own validation episodes "
-        "[default: 6000 graph, 12000 mlp]",
+        "[default: 8000 graph, 12000 mlp]",
     )
     p.add_argument(
         "--save-models",

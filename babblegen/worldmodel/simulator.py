@@ -42,7 +42,7 @@ class GraphSettings:
 
     members: int = 5
     hidden: int = 48
-    steps: int = 6000
+    steps: int = 8000
     check: int = 400
     patience: int = 3
     validation: float = 0.1
@@ -50,7 +50,7 @@ class GraphSettings:
     lr: float = 2e-3
     seed: int = 0
     threads: int = 0  # torch threads while training (0: torch's choice)
-    motion_noise: float = 0.0  # std of Gaussian noise on the objects' last motion inputs in training (cm, rad / 10)
+    motion_noise: float = 0.8  # std of Gaussian noise on the objects' last motion inputs in training (cm, rad / 10)
     # True: the networks predict the change of each object's motion from its last (GNS's acceleration), so that
     # "keeps moving as it moved" is what they say when they know nothing more; False: the motion itself
     residual: bool = False
