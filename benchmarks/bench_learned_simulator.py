@@ -32,8 +32,9 @@ def main() -> None:
     import torch
 
     from babblegen.worldmodel.episodes import EpisodeSet, read_dataset
-    from babblegen.worldmodel.planning import PlanningSettings, choose_goals, commander
+    from babblegen.worldmodel.planning import PlanningSettings, choose_goals
     from babblegen.worldmodel.planning_cem import CemSettings, cem_plan
+    from babblegen.worldmodel.planning_sim import commander
     from babblegen.worldmodel.simulator import GraphSettings, LearnedSimulator
 
     train = read_dataset(Path(args.train)).budget(attempts=args.attempts)

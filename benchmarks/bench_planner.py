@@ -34,7 +34,8 @@ def main() -> None:
     from babblegen.worldmodel.baseline import TrainSettings
     from babblegen.worldmodel.episodes import read_dataset
     from babblegen.worldmodel.experiment import fit_model
-    from babblegen.worldmodel.planning import PlanningSettings, choose_goals, commander
+    from babblegen.worldmodel.planning import PlanningSettings, choose_goals
+    from babblegen.worldmodel.planning_sim import commander
     from babblegen.worldmodel.simulator import GraphSettings
 
     train = read_dataset(args.train).episodes

@@ -219,13 +219,13 @@ def test_varied_objects_are_read_per_episode_and_planned_with(varied_objects_dat
              task.goal_xy, strict=True)]  # fmt: skip
     np.testing.assert_array_equal(task.objects, test.objects[goals])
     # every object ends exactly where it was recorded, height and yaw too; the slots' stand-ins would not
-    from babblegen.worldmodel.planning import _rollout
+    from babblegen.worldmodel.planning_sim import simulate
     from babblegen.worldmodel.poses import object_state
 
     c = test.commands[0]
     job = [str(test.source[0]), int(test.attempt[0]), c["kind"], c["genome"], c["layout"], c["objects"]]
-    np.testing.assert_array_equal(_rollout(tuple(job))[2], object_state(test.final[0]))
-    stand_ins = _rollout(tuple(job[:5] + [None]))[2]
+    np.testing.assert_array_equal(simulate(tuple(job))[2], object_state(test.final[0]))
+    stand_ins = simulate(tuple(job[:5] + [None]))[2]
     assert np.abs(stand_ins[:, 2] - object_state(test.final[0])[:, 2]).max() > 0.002
 
 

@@ -128,10 +128,10 @@ def test_the_scored_trajectory_is_the_executed_one(small_heldout_dataset):
     from babblegen.tasks import get_task
     from babblegen.world.rollout import Command
     from babblegen.world.world import World
-    from babblegen.worldmodel.planning import _config
     from babblegen.worldmodel.planning_cem import Commander
+    from babblegen.worldmodel.planning_sim import dataset_config
 
-    config = _config(str(small_heldout_dataset))
+    config = dataset_config(str(small_heldout_dataset))
     commander = Commander(config)
     rng = np.random.default_rng(5)
     genomes = [rng.random((int(rng.integers(1, 5)), 3)) for _ in range(40)]

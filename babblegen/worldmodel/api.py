@@ -79,7 +79,7 @@ def plan(
 ) -> Plan:
     """The movement the model predicts brings object ``goal_object`` nearest ``goal_xy`` from ``scene``: the
     cross-entropy method over waypoint genomes, scored by the model alone (`planning_cem.cem_plan`)."""
-    from babblegen.worldmodel.planning import commander
+    from babblegen.worldmodel.planning_sim import commander
 
     result = cem_plan(
         model, commander(scene.dataset), scene.poses[None], scene.joints[None], np.array([goal_object]),
@@ -91,9 +91,10 @@ def plan(
 def execute(scene: Scene, genome: np.ndarray, attempt: int = 0) -> np.ndarray | None:
     """(K, 4) where every object ends when ``genome`` runs from ``scene`` in the real simulator (None: infeasible),
     seeded as attempt ``attempt`` of the dataset's run."""
-    from babblegen.worldmodel.planning import PLAN_ATTEMPTS, _rollout
+    from babblegen.worldmodel.planning import PLAN_ATTEMPTS
+    from babblegen.worldmodel.planning_sim import simulate
 
     c = scene.command
-    ok, _, final = _rollout((scene.dataset, PLAN_ATTEMPTS + attempt, "ee_waypoints", np.asarray(genome).tolist(),
+    ok, _, final = simulate((scene.dataset, PLAN_ATTEMPTS + attempt, "ee_waypoints", np.asarray(genome).tolist(),
                              c["layout"], c.get("objects")))  # fmt: skip
     return final if ok else None

@@ -6,7 +6,7 @@ trajectory the model consumes (`Commander`), lets the model predict where the go
 sampling distribution to the genomes predicted nearest the goal. Its first population is uniform, as
 `random_waypoints` draws; each later one a Gaussian per waypoint coordinate around the elites (clipped to the box),
 its number of waypoints drawn from the elites' counts. The genome predicted nearest over all iterations is the
-choice. Nothing here runs the simulator: the choice is executed afterwards, once (`planning.execute`).
+choice. Nothing here runs the simulator: the choice is executed afterwards, once (`planning_sim.execute`).
 
 Scoring a genome must be cheap, so `Commander` does not plan with OMPL: it solves IK for each waypoint with the
 world's own `ArmPlanner.solve_iks` (its first stages batched over every genome at once) and joins the

@@ -17,8 +17,9 @@ from pathlib import Path
 
 import numpy as np
 
-from babblegen.worldmodel.planning import PLAN_ATTEMPTS, PlanningTask, _rollout, commander
+from babblegen.worldmodel.planning import PLAN_ATTEMPTS, PlanningTask
 from babblegen.worldmodel.planning_cem import CemSettings, cem_plan
+from babblegen.worldmodel.planning_sim import commander, simulate
 
 
 class GenomeRecorder:
@@ -56,7 +57,7 @@ class SimulatorModel:
         """(K, 4) final object states of ``genome`` run from goal ``goal``'s start (None: infeasible)."""
         specs = self.task.specs[goal] if self.task.specs else None
         job = (self.root, PLAN_ATTEMPTS + goal, "ee_waypoints", genome.tolist(), self.task.start[goal], specs)
-        ok, _, final = _rollout(job)
+        ok, _, final = simulate(job)
         self.runs += 1
         return final if ok else None
 
