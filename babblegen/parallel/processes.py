@@ -67,6 +67,7 @@ class ProcessEvaluator(PoolEvaluator):
         except BaseException:  # a stop (or an error) while spawning: none is left starting for nobody
             for w in self.workers:
                 w.process.kill()
+                w.process.join(5)  # reaped before the run exits: nothing of its session outlives it
             raise
         self._starting = list(self.workers)
 
@@ -99,6 +100,7 @@ class ProcessEvaluator(PoolEvaluator):
         except BaseException:  # a stop, held until it was started: it is not left warming up for nobody
             if p.pid is not None:
                 p.kill()
+                p.join(5)
             raise
         finally:
             child.close()
@@ -237,6 +239,7 @@ class ProcessEvaluator(PoolEvaluator):
         self._stop_dispatch()
         for w in self._starting:  # closed before they were ready (an error, Ctrl-C): nothing of theirs to keep
             w.process.kill()
+            w.process.join(5)
         for w in self.workers:
             with contextlib.suppress(BrokenPipeError, OSError):
                 w.conn.send(None)
@@ -244,3 +247,4 @@ class ProcessEvaluator(PoolEvaluator):
             w.process.join(10)
             if w.process.is_alive():
                 w.process.kill()
+                w.process.join(5)
