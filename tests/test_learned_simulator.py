@@ -8,6 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
+from synthetic import episode_set
 
 from babblegen.shapes import ObjectSpec
 from babblegen.tasks import get_robot, get_task
@@ -80,20 +81,10 @@ def push(planner: ArmPlanner, centre: tuple[float, float], angle: float, mass: f
 
 
 def episodes(items: list[dict]) -> EpisodeSet:
-    n = len(items)
-    return EpisodeSet(
-        scene=SCENE,
-        source=np.array(["d"] * n),
-        attempt=np.arange(n),
-        explorer=np.array(["x"] * n),
-        identity=np.array([str(i) for i in range(n)]),
-        layout=np.array([str(i) for i in range(n)]),
-        commands=[{"kind": "ee_waypoints", "genome": [], "layout": None}] * n,
-        actions=[e["actions"] for e in items],
-        states=[e["states"] for e in items],
-        poses=[e["poses"] for e in items],
-        objects=np.stack([e["objects"] for e in items]),
-    )
+    return episode_set(
+        SCENE, [e["poses"] for e in items], [e["actions"] for e in items], [e["states"] for e in items],
+        [str(i) for i in range(len(items))], [], np.stack([e["objects"] for e in items]),
+    )  # fmt: skip
 
 
 @pytest.fixture(scope="module")

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from synthetic import episode_set
 
 from babblegen.shapes import ObjectSpec
 from babblegen.worldmodel.arm import ArmFilter
@@ -47,18 +48,7 @@ def episodes(first: list[list[list[float]]], final: list[list[list[float]]]) -> 
     """Two-frame episodes from first and final poses."""
     n = len(first)
     poses = [np.array([a, b], dtype=np.float64) for a, b in zip(first, final, strict=True)]
-    return EpisodeSet(
-        scene=SCENE,
-        source=np.array(["d"] * n),
-        attempt=np.arange(n),
-        explorer=np.array(["x"] * n),
-        identity=np.array([str(i) for i in range(n)]),
-        layout=np.array(["task"] * n),
-        commands=[{"kind": "ee_waypoints", "genome": [[0.5, 0.5, 0.5]], "layout": None}] * n,
-        actions=[np.zeros((2, 7))] * n,
-        states=[np.zeros((2, 7))] * n,
-        poses=poses,
-    )
+    return episode_set(SCENE, poses, [np.zeros((2, 7))] * n, [np.zeros((2, 7))] * n, ["task"] * n, [[0.5, 0.5, 0.5]])
 
 
 REST = [pose(0.8, 0.2, 0.75), pose(0.7, -0.1, 0.76), pose(1.1, -0.1, 0.74)]
