@@ -31,6 +31,12 @@ class _Worker:
     owed: dict[int, None] = field(default_factory=dict)  # attempts whose preparation it is to send, in its order
 
 
+def _kill(process) -> None:
+    """Kill a worker process and reap it: nothing of the run's session outlives the run."""
+    process.kill()
+    process.join(5)
+
+
 class ProcessEvaluator(PoolEvaluator):
     """``n`` local worker processes (`babblegen.parallel.worker`). Each returns a rollout as soon as it is
     simulated, and renders and prepares the episode when it has no rollout to run; a worker left with nothing to
@@ -66,8 +72,7 @@ class ProcessEvaluator(PoolEvaluator):
                 self.workers.append(self._spawn())
         except BaseException:  # a stop (or an error) while spawning: none is left starting for nobody
             for w in self.workers:
-                w.process.kill()
-                w.process.join(5)  # reaped before the run exits: nothing of its session outlives it
+                _kill(w.process)
             raise
         self._starting = list(self.workers)
 
@@ -99,8 +104,7 @@ class ProcessEvaluator(PoolEvaluator):
                 p.start()
         except BaseException:  # a stop, held until it was started: it is not left warming up for nobody
             if p.pid is not None:
-                p.kill()
-                p.join(5)
+                _kill(p)
             raise
         finally:
             child.close()
@@ -180,8 +184,7 @@ class ProcessEvaluator(PoolEvaluator):
 
     def _replace(self, slot: int) -> None:
         w = self.workers[slot]
-        w.process.kill()
-        w.process.join(5)
+        _kill(w.process)
         fresh = self._spawn()
         self._await_ready(fresh)
         self.workers[slot] = fresh
@@ -238,13 +241,11 @@ class ProcessEvaluator(PoolEvaluator):
     def close(self) -> None:
         self._stop_dispatch()
         for w in self._starting:  # closed before they were ready (an error, Ctrl-C): nothing of theirs to keep
-            w.process.kill()
-            w.process.join(5)
+            _kill(w.process)
         for w in self.workers:
             with contextlib.suppress(BrokenPipeError, OSError):
                 w.conn.send(None)
         for w in self.workers:
             w.process.join(10)
             if w.process.is_alive():
-                w.process.kill()
-                w.process.join(5)
+                _kill(w.process)
