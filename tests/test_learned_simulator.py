@@ -14,19 +14,10 @@ from babblegen.shapes import ObjectSpec
 from babblegen.tasks import get_robot, get_task
 from babblegen.world.planning import ArmPlanner
 from babblegen.world.settings import WorldSettings
-from babblegen.worldmodel import contact_graph as cg
-from babblegen.worldmodel.arm import ArmFilter, ArmSpheres
+from babblegen.worldmodel.arm import ArmSpheres
 from babblegen.worldmodel.episodes import EpisodeSet, Scene, object_vector
-from babblegen.worldmodel.gnn import tensors
 from babblegen.worldmodel.poses import quat_multiply, rotate
-from babblegen.worldmodel.simulator import (
-    GraphSettings,
-    LearnedSimulator,
-    active_frames,
-    pushforward_rows,
-    rows_of,
-    surfaces,
-)
+from babblegen.worldmodel.simulator import GraphSettings, LearnedSimulator, surfaces
 
 TASK = get_task("noveb_tabletop")
 ROBOT = get_robot(TASK.robot_uid)
@@ -176,35 +167,3 @@ def push_free() -> dict:
     box = np.array([0.8, -0.1, TOP + HALF, 1.0, 0.0, 0.0, 0.0])
     return {"actions": joints, "states": joints, "poses": np.array([[box, far]] * 3),
             "objects": np.stack([object_vector(cube(LIGHT)), object_vector(FAR)])}  # fmt: skip
-
-
-def test_pushforward_continues_from_the_networks_own_prediction(planner: ArmPlanner):
-    """Training one frame on from the network's prediction: with a network that predicts each frame's true motion,
-    the rows one frame on are the true next frame's rows (graph, target, "moves"); with one that says nothing
-    moves, the objects stay where they were and the target is the true motion over the two frames."""
-    e = episodes([push(planner, (0.8, -0.1), 0.2, LIGHT)])
-    spheres = ArmSpheres(TASK.robot_uid)
-    f = active_frames(e, spheres, ArmFilter.fit(e.actions, e.states))
-    graph, motion, moves = rows_of(f, spheres.radii, SCENE)
-    x = tensors(graph)
-    # rows whose next frame is the next row (the frames a sweep keeps active)
-    rows = np.array([i for i in range(len(f.now) - 1) if f.two_on[i] and np.array_equal(f.now[i + 1], f.after[i])])
-    assert len(rows) >= 8 and moves[rows, 0].any()
-
-    def network(logit: np.ndarray, out_motion: np.ndarray):
-        out = np.concatenate([logit[..., None], out_motion], axis=-1)[None]  # one member
-        return lambda inputs: torch.from_numpy(out.astype(np.float32))
-
-    sure = np.where(moves[rows], 10.0, -10.0)
-    g1, y1, m1 = pushforward_rows(network(sure, motion[rows]), f, x, graph.frame, rows, spheres.radii, SCENE, False)
-    np.testing.assert_array_equal(m1, moves[rows + 1])
-    np.testing.assert_allclose(y1, motion[rows + 1], atol=2e-3)  # cm, rad / 10: float32 poses
-    np.testing.assert_allclose(g1.node, graph.node[rows + 1], atol=2e-3)
-    np.testing.assert_array_equal(g1.arm_mask, graph.arm_mask[rows + 1])
-
-    still = np.full(moves[rows].shape, -10.0)
-    g0, y0, _ = pushforward_rows(network(still, motion[rows]), f, x, graph.frame, rows, spheres.radii, SCENE, False)
-    two, _ = cg.targets(f.now[rows], f.after2[rows], g0.frame)
-    np.testing.assert_allclose(y0, two, atol=1e-6)
-    np.testing.assert_array_equal(g0.node[..., :6], 0.0)  # no last motion: it did not move
-    assert np.linalg.norm(y0[:, 0, :3], axis=-1).max() > np.linalg.norm(motion[rows, 0, :3], axis=-1).max()

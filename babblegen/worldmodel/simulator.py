@@ -15,7 +15,6 @@ babblegen/worldmodel/gnn.py), rolled out frame by frame on its own predictions.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -33,7 +32,6 @@ from babblegen.worldmodel.poses import as_poses, object_state
 
 GATES = (-1.5, -1.0, -0.5, 0.0, 0.5, 1.0)  # the "moves" thresholds (logits) a model chooses among
 FORMAT = 1  # the saved model's layout
-CHUNK = 4096  # frames whose graphs are built at once
 
 
 @dataclass
@@ -56,8 +54,6 @@ class GraphSettings:
     # True: the networks predict the change of each object's motion from its last (GNS's acceleration), so that
     # "keeps moving as it moved" is what they say when they know nothing more; False: the motion itself
     residual: bool = False
-    # the weight of the loss one frame on from the networks' own prediction (`pushforward_rows`; 0: off)
-    pushforward: float = 0.0
 
 
 def surfaces(objects: np.ndarray) -> cg.Surfaces:
@@ -78,71 +74,33 @@ def surfaces(objects: np.ndarray) -> cg.Surfaces:
     return cg.Surfaces(points, normals, np.linalg.norm(points, axis=-1).max(axis=-1), physics)
 
 
-@dataclass
-class Frames:
-    """Every active frame of episodes with the true poses, one row each: the objects' poses a frame before, now, one
-    and two frames on (R, K, 7; past an episode's end its last pose), the arm's spheres now and one and two frames on
-    (R, S, 3), the objects' surfaces, and whether the episode lasts two more frames (R,)."""
-
-    before: np.ndarray
-    now: np.ndarray
-    after: np.ndarray
-    after2: np.ndarray
-    arm0: np.ndarray
-    arm1: np.ndarray
-    arm2: np.ndarray
-    surf: cg.Surfaces
-    two_on: np.ndarray
-
-
-def active_frames(episodes: EpisodeSet, spheres: ArmSpheres, arm: ArmFilter) -> Frames | None:
-    """The `Frames` of every episode, with the arm where ``arm`` puts it from the commands (as a rollout sees it);
-    None when no frame is active."""
-    parts = []
+def episode_rows(
+    episodes: EpisodeSet, spheres: ArmSpheres, arm: ArmFilter
+) -> tuple[cg.Graph, np.ndarray, np.ndarray] | None:
+    """Every active frame of every episode, with the true poses and the arm where ``arm`` puts it from the commands
+    (as a rollout sees it): its graph, and per object its motion to the next frame and whether it moves; None when
+    no frame is active."""
+    scene = episodes.scene
+    graphs, motions, moves = [], [], []
     for a, q, poses, objects in zip(episodes.actions, episodes.states, episodes.poses, episodes.objects, strict=True):
         balls = spheres(arm.run(a, q[0]))
-        now = poses[:-1]
+        now, after = poses[:-1], poses[1:]
         before = np.concatenate([poses[:1], poses[:-2]])
         surf = surfaces(np.broadcast_to(objects, (len(now), *objects.shape)))
         live = np.flatnonzero(cg.active(now, before, balls[:-1], balls[1:], spheres.radii, surf.radius))
         if not len(live):
             continue
-        two = np.minimum(live + 2, len(poses) - 1)
-        parts.append((before[live], now[live], poses[live + 1], poses[two], balls[live], balls[live + 1], balls[two],
-                      surf.take(live), live + 2 < len(poses)))  # fmt: skip
-    if not parts:
+        g = cg.build(
+            now[live], before[live], balls[:-1][live], balls[1:][live], spheres.radii, surf.take(live), scene.table,
+            scene.top,
+        )  # fmt: skip
+        y, m = cg.targets(now[live], after[live], g.frame)
+        graphs.append(g)
+        motions.append(y)
+        moves.append(m)
+    if not graphs:
         return None
-    cols = list(zip(*parts, strict=True))
-    surf = cg.Surfaces(*(np.concatenate([getattr(x, f) for x in cols[7]]) for f in ("points", "normals", "radius",
-                                                                                     "physics")))  # fmt: skip
-    return Frames(*(np.concatenate(c) for c in cols[:7]), surf, np.concatenate(cols[8]))
-
-
-def episode_rows(
-    episodes: EpisodeSet, spheres: ArmSpheres, arm: ArmFilter
-) -> tuple[cg.Graph, np.ndarray, np.ndarray] | None:
-    """Every active frame of every episode (`active_frames`): its graph, and per object its motion to the next
-    frame and whether it moves; None when no frame is active."""
-    found = active_frames(episodes, spheres, arm)
-    return None if found is None else rows_of(found, spheres.radii, episodes.scene)
-
-
-def rows_of(f: Frames, radii: np.ndarray, scene: Scene) -> tuple[cg.Graph, np.ndarray, np.ndarray]:
-    """`episode_rows` of frames: their graphs, built `CHUNK` frames at a time, their motions and "moves"."""
-    n = len(f.now)
-    graph = cg.Graph.concat([graph_of(f, np.arange(a, min(a + CHUNK, n)), radii, scene) for a in range(0, n, CHUNK)])
-    motion, moves = cg.targets(f.now, f.after, graph.frame)
-    return graph, motion, moves
-
-
-def graph_of(f: Frames, rows: np.ndarray, radii: np.ndarray, scene: Scene, now: np.ndarray | None = None,
-             step: int = 0) -> cg.Graph:  # fmt: skip
-    """The graph of ``f``'s ``rows`` at their frame (``step`` 0), or a frame on (1) with the objects at ``now``."""
-    arms = (f.arm0, f.arm1, f.arm2)
-    poses = f.now[rows] if now is None else now
-    before = (f.before, f.now)[step][rows]
-    return cg.build(poses, before, arms[step][rows], arms[step + 1][rows], radii, f.surf.take(rows), scene.table,
-                    scene.top)  # fmt: skip
+    return cg.Graph.concat(graphs), np.concatenate(motions), np.concatenate(moves)
 
 
 def loss_of(
@@ -159,31 +117,6 @@ def loss_of(
         err = nn.functional.smooth_l1_loss(pred, motion.expand_as(pred), reduction="none").sum(-1)
         loss = loss + (err * moves).sum(dim=(1, 2)) / moves.sum()
     return loss.sum()
-
-
-def pushforward_rows(
-    net: Callable[[dict], torch.Tensor],
-    f: Frames,
-    x: dict,
-    frame: np.ndarray,
-    rows: np.ndarray,
-    radii: np.ndarray,
-    scene: Scene,
-    residual: bool,
-) -> tuple[cg.Graph, np.ndarray, np.ndarray]:
-    """Rows one frame on from the network's own prediction (the pushforward trick): ``rows`` of ``f`` (their inputs
-    ``x``, push frames ``frame``) are moved by the members' mean motion, gated at 0, and their graphs rebuilt there;
-    the target is the motion from there to the true pose two frames on, and "moves" whether the object truly moves
-    then. Trained on these too, the network learns to act on the poses its own rollouts reach."""
-    with torch.no_grad():
-        out = net({k: v[rows] for k, v in x.items()}).numpy()
-    motion = out[..., 1:].mean(axis=0)
-    if residual:
-        motion = motion + x["node"][rows][..., :6].numpy()
-    moved = cg.apply_motion(f.now[rows], motion * (out[..., 0].mean(axis=0) > 0)[..., None], frame[rows])
-    graph = graph_of(f, rows, radii, scene, now=moved, step=1)
-    target, _ = cg.targets(moved, f.after2[rows], graph.frame)
-    return graph, target, cg.moving(f.after[rows], f.after2[rows])
 
 
 class LearnedSimulator(GatedModel):
@@ -212,12 +145,12 @@ class LearnedSimulator(GatedModel):
         spheres = ArmSpheres(episodes.scene.robot)
         net = GraphNet(s.members, len(episodes.scene.objects), s.hidden)
         arm = ArmFilter.fit(train.actions, train.states)
-        frames = active_frames(train, spheres, arm)
-        if frames is None:  # the arm came near no object: nothing moves, as far as this model knows
+        rows = episode_rows(train, spheres, arm)
+        if rows is None:  # the arm came near no object: nothing moves, as far as this model knows
             model = cls(episodes.scene, arm, net.eval(), s)
             model.gate, model.train_seconds = np.inf, time.perf_counter() - started
             return model
-        graph, motion, moves = rows_of(frames, spheres.radii, episodes.scene)
+        graph, motion, moves = rows
         net.scale.fit(graph)
         x, y, mv = tensors(graph), torch.from_numpy(motion), torch.from_numpy(moves.astype(np.float32))
         checks = episode_rows(val, spheres, arm) if n_val else None
@@ -241,17 +174,6 @@ class LearnedSimulator(GatedModel):
                 batch["node"] = batch["node"].clone()
                 batch["node"][..., :6] += s.motion_noise * torch.randn(batch["node"][..., :6].shape)
             loss = loss_of(net(batch), y[idx], mv[idx], batch["node"][..., :6] if s.residual else None)
-            if s.pushforward:
-                on = idx.numpy()[frames.two_on[idx.numpy()]]
-                if len(on):
-                    g1, y1, m1 = pushforward_rows(
-                        net, frames, x, graph.frame, on, spheres.radii, train.scene, s.residual
-                    )
-                    x1 = tensors(g1)
-                    last1 = x1["node"][..., :6] if s.residual else None
-                    loss = loss + s.pushforward * loss_of(
-                        net(x1), torch.from_numpy(y1), torch.from_numpy(m1.astype(np.float32)), last1
-                    )
             opt.zero_grad()
             loss.backward()
             opt.step()
