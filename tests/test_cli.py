@@ -191,6 +191,27 @@ def test_a_stop_during_the_console_scripts_imports_ends_the_run_before_it_writes
     assert list(out.iterdir()) == []
 
 
+def test_a_signal_as_the_run_ends_still_gives_130(tmp_path):
+    """A signal while `generate` prints its summary: the dataset is complete, the run says so and exits with 130."""
+    script = (
+        "import os, signal, sys\n"
+        "import babblegen.cli as cli\n"
+        "def finished():\n"
+        "    print('finished: 3 attempts')\n"
+        "    os.kill(os.getpid(), signal.SIGTERM)\n"
+        "    print('dataset: out')\n"
+        "    return 0\n"
+        "cli.main = finished\n"
+        f"sys.argv = ['babblegen', 'generate', '--out', {str(tmp_path / 'out')!r}]\n"
+        "cli.entry_point()\n"
+    )
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
+    printed = proc.stdout + proc.stderr
+    assert proc.returncode == 130, printed
+    assert "SIGTERM arrived as babblegen ended: the dataset is complete" in proc.stderr, printed
+    assert proc.stdout.splitlines() == ["finished: 3 attempts", "dataset: out"], printed
+
+
 @pytest.mark.parametrize(
     ("flags", "message"),
     [
