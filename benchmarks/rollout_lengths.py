@@ -27,6 +27,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from babblegen.worldmodel.cli import _named_dirs
 from babblegen.worldmodel.episodes import MOVED, EpisodeSet, read_dataset
 from babblegen.worldmodel.gnn import tensors
 from babblegen.worldmodel.metrics import score
@@ -93,17 +94,14 @@ def rolled_out(model: LearnedSimulator, episodes: EpisodeSet) -> dict:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--model", type=Path, required=True)
-    parser.add_argument("--test", action="append", required=True, help="NAME=DIR[,DIR...]")
+    parser.add_argument("--test", action="append", required=True, type=_named_dirs, help="NAME=DIR[,DIR...]")
     parser.add_argument("--gates", default="0/0", help="comma-separated MOVING/NEAR gate variants")
     parser.add_argument("--threads", type=int, default=1)
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     model = LearnedSimulator.load(args.model)
     net = model.net
-    tests = {}
-    for spec in args.test:
-        name, dirs = spec.split("=", 1)
-        tests[name] = EpisodeSet.union([read_dataset(Path(d)).episodes for d in dirs.split(",")])
+    tests = {name: EpisodeSet.union([read_dataset(d).episodes for d in dirs]) for name, dirs in args.test}
     print(f"gate {model.gate}", flush=True)
     for name, episodes in tests.items():
         print(json.dumps({"test": name, "one frame": one_frame(model, episodes)}), flush=True)
@@ -113,7 +111,6 @@ def main() -> None:
         row = {"gate lowered (moving/near)": variant}
         row.update({name: rolled_out(model, episodes) for name, episodes in tests.items()})
         print(json.dumps(row), flush=True)
-    model.net = net
 
 
 if __name__ == "__main__":
