@@ -31,7 +31,7 @@ class _Worker:
     owed: dict[int, None] = field(default_factory=dict)  # attempts whose preparation it is to send, in its order
 
 
-def _kill(process) -> None:
+def _kill(process: mp.Process) -> None:
     """Kill a worker process and reap it: nothing of the run's session outlives the run."""
     process.kill()
     process.join(5)
