@@ -14,6 +14,7 @@ from babblegen.shapes import ObjectSpec
 from babblegen.tasks import get_robot, get_task
 from babblegen.world.planning import ArmPlanner
 from babblegen.world.settings import WorldSettings
+from babblegen.worldmodel import contact_graph as cg
 from babblegen.worldmodel.arm import ArmSpheres
 from babblegen.worldmodel.episodes import EpisodeSet, Scene, object_vector
 from babblegen.worldmodel.poses import quat_multiply, rotate
@@ -167,3 +168,33 @@ def push_free() -> dict:
     box = np.array([0.8, -0.1, TOP + HALF, 1.0, 0.0, 0.0, 0.0])
     return {"actions": joints, "states": joints, "poses": np.array([[box, far]] * 3),
             "objects": np.stack([object_vector(cube(LIGHT)), object_vector(FAR)])}  # fmt: skip
+
+
+def test_arm_edges_read_where_the_sphere_goes_the_frame_after():
+    """A sphere comes up to a cube's face this frame: its edges carry its next frame's motion and how near that
+    sweep passes each edge's point, worked out here from the segment and the point. Going on into the cube, the
+    sweep passes through the face (a negative gap); going back, it passes no nearer than where it is now."""
+    e = episodes([push_free()])
+    surf = surfaces(e.objects)
+    box = e.poses[0][:1]  # (1, K, 7), the cube unturned
+    r = np.array([0.02])
+    x_face = box[0, 0, 0] - HALF
+    a0 = np.array([[[x_face - 0.05, box[0, 0, 1], box[0, 0, 2]]]])
+    a1 = np.array([[[x_face - 0.021, box[0, 0, 1], box[0, 0, 2]]]])  # 1 mm from the face
+    for step in (0.06, -0.06):
+        a2 = a1 + [step, 0.0, 0.0]
+        g = cg.build(box, box, a0, a1, a2, r, surf.take(np.array([0])), SCENE.table, SCENE.top)
+        assert g.frame[0, 0] == pytest.approx(0.0, abs=1e-6)  # the push frame is the world's: the sphere comes from -x
+        feats = g.arm[0, 0][g.arm_mask[0, 0]]
+        assert len(feats) == cg.ARM_EDGES
+        np.testing.assert_allclose(feats[:, -4:-1], np.tile([step * cg.POS, 0, 0], (len(feats), 1)), atol=1e-5)
+        points = box[0, 0, :3] + feats[:, :3] / cg.POS  # each edge's surface point, from its own feature
+        seg = a2[0, 0] - a1[0, 0]
+        along = np.clip((points - a1[0, 0]) @ seg / (seg @ seg), 0, 1)
+        gaps = np.linalg.norm(points - (a1[0, 0] + along[:, None] * seg), axis=1) - r[0]
+        np.testing.assert_allclose(feats[:, -1], np.minimum(gaps, cg.NEXT_NEAR) * cg.VEL, atol=1e-3)
+        now = np.linalg.norm(points - a1[0, 0], axis=1) - r[0]
+        if step > 0:
+            assert feats[:, -1].min() < -1.0  # through the face: over 1 cm inside the sphere's sweep
+        else:
+            np.testing.assert_allclose(feats[:, -1], np.minimum(now, cg.NEXT_NEAR) * cg.VEL, atol=1e-3)

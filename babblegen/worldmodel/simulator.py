@@ -31,7 +31,7 @@ from babblegen.worldmodel.gnn import GraphNet, tensors
 from babblegen.worldmodel.poses import as_poses, object_state
 
 GATES = (-1.5, -1.0, -0.5, 0.0, 0.5, 1.0)  # the "moves" thresholds (logits) a model chooses among
-FORMAT = 1  # the saved model's layout
+FORMAT = 2  # the saved model's layout (2: arm edges read the frame after)
 
 
 @dataclass
@@ -91,8 +91,8 @@ def episode_rows(
         if not len(live):
             continue
         g = cg.build(
-            now[live], before[live], balls[:-1][live], balls[1:][live], spheres.radii, surf.take(live), scene.table,
-            scene.top,
+            now[live], before[live], balls[:-1][live], balls[1:][live], np.concatenate([balls[2:], balls[-1:]])[live],
+            spheres.radii, surf.take(live), scene.table, scene.top,
         )  # fmt: skip
         y, m = cg.targets(now[live], after[live], g.frame)
         graphs.append(g)
@@ -244,7 +244,8 @@ class LearnedSimulator(GatedModel):
                 before[idx] = now[idx]
                 if len(rows):
                     g = cg.build(
-                        now[rows], previous, balls[rows, t], balls[rows, t + 1], radii, surf.take(rows),
+                        now[rows], previous, balls[rows, t], balls[rows, t + 1], balls[rows, min(t + 2, horizon - 1)],
+                        radii, surf.take(rows),
                         self.scene.table, self.scene.top,
                     )  # fmt: skip
                     out = self.net(tensors(g)).numpy()  # (M, R, K, 7)
