@@ -16,9 +16,9 @@ from babblegen.world.planning import ArmPlanner
 from babblegen.world.settings import WorldSettings
 from babblegen.worldmodel import contact_graph as cg
 from babblegen.worldmodel.arm import ArmSpheres
-from babblegen.worldmodel.episodes import EpisodeSet, Scene, object_vector
+from babblegen.worldmodel.episodes import EpisodeSet, EvaluationError, Scene, object_vector
 from babblegen.worldmodel.poses import quat_multiply, rotate
-from babblegen.worldmodel.simulator import GraphSettings, LearnedSimulator, surfaces
+from babblegen.worldmodel.simulator import FORMAT, GraphSettings, LearnedSimulator, surfaces
 
 TASK = get_task("noveb_tabletop")
 ROBOT = get_robot(TASK.robot_uid)
@@ -198,3 +198,21 @@ def test_arm_edges_read_where_the_sphere_goes_the_frame_after():
             assert feats[:, -1].min() < -1.0  # through the face: over 1 cm inside the sphere's sweep
         else:
             np.testing.assert_allclose(feats[:, -1], np.minimum(now, cg.NEXT_NEAR) * cg.VEL, atol=1e-3)
+
+
+def test_a_saved_model_loads_back_and_predicts_the_same(planner: ArmPlanner, trained: LearnedSimulator, tmp_path):
+    """`save` then `load` gives the same predictions and gate; a model saved in another format is refused with
+    what to do about it."""
+    path = trained.save(tmp_path / "model.pt")
+    back = LearnedSimulator.load(path)
+    e = episodes([push(planner, (0.8, -0.1), 0.3, LIGHT), push(planner, (0.75, -0.2), -0.4, HEAVY)])
+    np.testing.assert_array_equal(back.predict(e), trained.predict(e))
+    assert back.gate == trained.gate and back.trained_steps == trained.trained_steps
+    old = torch.load(path, weights_only=False)
+    old["format"] = FORMAT - 1
+    torch.save(old, tmp_path / "old.pt")
+    with pytest.raises(EvaluationError, match=f"format {FORMAT - 1}; this babblegen reads format {FORMAT}: train"):
+        LearnedSimulator.load(tmp_path / "old.pt")
+    torch.save({"weights": 1}, tmp_path / "other.pt")
+    with pytest.raises(EvaluationError, match="is not a babblegen learned simulator"):
+        LearnedSimulator.load(tmp_path / "other.pt")

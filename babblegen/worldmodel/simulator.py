@@ -290,8 +290,13 @@ class LearnedSimulator(GatedModel):
     @classmethod
     def load(cls, path: Path) -> LearnedSimulator:
         data = torch.load(Path(path), map_location="cpu", weights_only=False)
-        if data.get("kind") != cls.kind or data.get("format") != FORMAT:
-            raise EvaluationError(f"{path} is not a babblegen learned simulator (format {FORMAT})")
+        if not isinstance(data, dict) or data.get("kind") != cls.kind:
+            raise EvaluationError(f"{path} is not a babblegen learned simulator")
+        if data.get("format") != FORMAT:
+            raise EvaluationError(
+                f"{path} is a learned simulator of format {data.get('format')}; this babblegen reads format {FORMAT}: "
+                "train it again (babblegen evaluate --save-models DIR)"
+            )
         sc = data["scene"]
         scene = Scene(
             sc["task"], tuple(ObjectSpec.from_record(o) for o in sc["objects"]), tuple(sc["table"]), sc["top"],
