@@ -175,6 +175,7 @@ def resumed_config(stored: dict[str, Any], overrides: dict[str, Any] | None = No
     if "pcm" not in data["world"] and data.get("video_codec", "libsvtav1") == "h264":
         data["video_codec"] = "h264_mbtree"  # stored before either change: x264 ran its macroblock tree
     data["world"].setdefault("pcm", True)  # ... and PhysX generated contacts with persistent manifolds
+    data["world"].setdefault("box_hulls", False)  # stored before the setting existed: boxes were PhysX's boxes
     data["world"].setdefault("starts", "fixed")  # stored before starts varied: every episode began from the task's
     for key, value in (overrides or {}).items():
         if value is None:

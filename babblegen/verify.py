@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from babblegen.assembly import build_descriptor
-from babblegen.config import ConfigError, RunConfig
+from babblegen.config import ConfigError, resumed_config
 from babblegen.dataset.lerobot import frame_columns, load_dataset
 from babblegen.dataset.paths import ATTEMPTS, sidecar_dir
 from babblegen.dataset.schema import CONTACTS, ENVIRONMENT_STATE, OBJECT_CONTACTS, STATE
@@ -73,8 +73,7 @@ def verify(root: Path, episodes: int, echo=print) -> int:
     from babblegen.world.world import World
 
     info = read_run_info(root)
-    config = RunConfig.from_dict(info["config"])
-    config.validate()
+    config = resumed_config(info["config"])  # with the settings of its time, where it was stored before them
     rows = sample(read_attempts(root), episodes)
     if not rows:
         raise ConfigError(f"{root} holds no executed episode to verify")

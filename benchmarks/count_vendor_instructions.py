@@ -4,7 +4,7 @@ CPU maker chose within the ISA's error bound: ``rsqrtps(10.0f)`` is ``0x3EA1E800
 on an Intel one. A run that executes none computes the same on both.
 
     python benchmarks/count_vendor_instructions.py --attempts 1200 --starts fixed
-    python benchmarks/count_vendor_instructions.py --attempts 150 --pcm on     # the counter at work: thousands
+    python benchmarks/count_vendor_instructions.py --attempts 150 --box-hulls off   # the counter at work: thousands
     python benchmarks/count_vendor_instructions.py --jit --llvm-cpus haswell znver3
 
 The run: finds every such instruction in the libraries with ``objdump``, then runs ``babblegen generate
@@ -246,7 +246,10 @@ def main() -> None:
     p.add_argument(
         "--objects", choices=["paper", "varied", "heldout"], default="paper", help="the run's object set [paper]"
     )
-    p.add_argument("--pcm", choices=["on", "off"], default="off", help="PhysX's persistent contact manifolds [off]")
+    p.add_argument("--pcm", choices=["on", "off"], default="on", help="PhysX's persistent contact manifolds [on]")
+    p.add_argument(
+        "--box-hulls", choices=["on", "off"], default="on", help="the scene's boxes collide as convex hulls [on]"
+    )
     p.add_argument("--depth", action="store_true", help="record depth maps too (x265 encodes them)")
     p.add_argument("--video-codec", default=None, help="h264 (the default) or libsvtav1")
     p.add_argument(
@@ -282,7 +285,8 @@ def main() -> None:
         if args.video_codec:
             generate += ["--video-codec", args.video_codec]
         config = workdir / "world.toml"
-        config.write_text(f"[world]\npcm = {'true' if args.pcm == 'on' else 'false'}\n")
+        on = {"on": "true", "off": "false"}
+        config.write_text(f"[world]\npcm = {on[args.pcm]}\nbox_hulls = {on[args.box_hulls]}\n")
         generate += ["--config", str(config)]
         print(f"babblegen generate {' '.join(generate)}")
         counts, status, seconds = count_run(sites, generate, workdir)

@@ -68,13 +68,35 @@ def _add_hull(builder: ObjectBuilder, part: Part, density: float, physical, mat)
     builder._procedural_shapes.append(visual)
 
 
-def _add_part(builder, part: Part, density: float, physical, mat) -> None:
-    """One part's collision shape (of ``density`` and material ``physical``, None: the default) and its visual."""
+def _add_box_collision(builder, half_size, pose: sapien.Pose, box_hulls: bool, density: float = 1000.0, physical=None):
+    """A box's collision shape: PhysX's box, or (``box_hulls``, on an `ObjectBuilder`) the convex hull of its eight
+    corners, which PhysX's contact generators treat as any convex shape. With persistent contact manifolds on, a
+    pair of PhysX boxes meets the one generator that runs approximate-reciprocal instructions, whose results differ
+    between CPU makers; without them, PhysX's box-box generator pushes from up to both shapes' contact offsets apart
+    (docs/reproducibility.md)."""
+    if not box_hulls:
+        kw = {"density": density} if physical is None else {"density": density, "material": physical}
+        builder.add_box_collision(pose=pose, half_size=list(half_size), **kw)
+        return
+    corners = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], np.float32)
+    shape = sapien.physx.PhysxCollisionShapeConvexMesh(
+        vertices=corners * np.asarray(half_size, np.float32),
+        scale=np.ones(3, np.float32),
+        material=physical or sapien.physx.get_default_material(),
+    )
+    shape.local_pose = pose
+    shape.set_density(density)
+    builder.hulls.append(shape)
+
+
+def _add_part(builder, part: Part, density: float, physical, mat, box_hulls: bool = False) -> None:
+    """One part's collision shape (of ``density`` and material ``physical``, None: the default) and its visual;
+    boxes as convex hulls with ``box_hulls`` (`_add_box_collision`)."""
     pose = sapien.Pose(p=list(part.offset))
     kw = {"density": density} if physical is None else {"density": density, "material": physical}
     s = part.size
     if part.kind == "box":
-        builder.add_box_collision(pose=pose, half_size=list(s), **kw)
+        _add_box_collision(builder, s, pose, box_hulls, density, physical)
         builder.add_box_visual(pose=pose, half_size=list(s), material=mat)
     elif part.kind == "cylinder":
         pose = sapien.Pose(p=list(part.offset), q=_UPRIGHT)
@@ -109,12 +131,14 @@ class TabletopEnv(BaseEnv):
         sim_freq: int = 100,
         control_freq: int = 20,
         pcm: bool = False,
+        box_hulls: bool = False,
         object_specs: tuple[ObjectSpec, ...] | None = None,
         **kwargs,
     ):
         self.camera_width, self.camera_height = camera_width, camera_height
         self.cameras = tuple(cameras) if cameras else (CAMERA_PRESETS["head"],)
         self._sim_freq, self._control_freq, self._pcm = sim_freq, control_freq, pcm
+        self._box_hulls = box_hulls  # the scene's boxes collide as convex hulls (`_add_box_collision`)
         self.objects: dict[str, object] = {}
         # what stands on the table now: the task's objects, or the run's slots (babblegen.objects.slot_task)
         self.object_specs: tuple[ObjectSpec, ...] = tuple(object_specs or self.task_spec.objects)
@@ -164,16 +188,16 @@ class TabletopEnv(BaseEnv):
     def _load_scene(self, options: dict):
         spec = self.task_spec
         t = spec.table
-        builder = self.scene.create_actor_builder()
-        builder.add_box_collision(half_size=list(t.half_extents))
+        builder = ObjectBuilder().set_scene(self.scene)
+        _add_box_collision(builder, t.half_extents, sapien.Pose(), self._box_hulls)
         builder.add_box_visual(
             half_size=list(t.half_extents),
             material=sapien.render.RenderMaterial(base_color=[0.55, 0.4, 0.28, 1]),
         )
         builder.initial_pose = sapien.Pose(p=list(t.center))
         self.table = builder.build_static(name="table")
-        floor = self.scene.create_actor_builder()
-        floor.add_box_collision(half_size=[5, 5, 0.01])
+        floor = ObjectBuilder().set_scene(self.scene)
+        _add_box_collision(floor, [5, 5, 0.01], sapien.Pose(), self._box_hulls)
         floor.add_box_visual(
             half_size=[5, 5, 0.01], material=sapien.render.RenderMaterial(base_color=[0.8, 0.8, 0.78, 1])
         )
@@ -186,8 +210,8 @@ class TabletopEnv(BaseEnv):
 
     def _build_obstacle(self, box: Box):
         """A static box that is also a planning obstacle (TaskSpec.extra_obstacles): walls, shelves."""
-        builder = self.scene.create_actor_builder()
-        builder.add_box_collision(half_size=list(box.half_extents))
+        builder = ObjectBuilder().set_scene(self.scene)
+        _add_box_collision(builder, box.half_extents, sapien.Pose(), self._box_hulls)
         builder.add_box_visual(
             half_size=list(box.half_extents), material=sapien.render.RenderMaterial(base_color=OBSTACLE_COLOR)
         )
@@ -200,14 +224,14 @@ class TabletopEnv(BaseEnv):
         """One free object from its parts (`ObjectSpec.parts`), all of its density. The paper's objects keep the
         simulator's default material, as they always did; any other gets a material of its own (the default one
         is shared with the table and the robot)."""
-        builder = ObjectBuilder().set_scene(self.scene) if obj.shape == "hull" else self.scene.create_actor_builder()
+        builder = ObjectBuilder().set_scene(self.scene)
         mat = sapien.render.RenderMaterial(base_color=list(obj.color))
         density = obj.mass / obj.volume
         physical = None
         if (obj.static_friction, obj.dynamic_friction, obj.restitution) != DEFAULT_MATERIAL:
             physical = sapien.physx.PhysxMaterial(obj.static_friction, obj.dynamic_friction, obj.restitution)
         for part in obj.parts():
-            _add_part(builder, part, density, physical, mat)
+            _add_part(builder, part, density, physical, mat, self._box_hulls)
         rest = self._rest_pose(obj)
         builder.initial_pose = sapien.Pose(p=list(rest[:3]), q=list(rest[3:]))
         return builder.build(name=obj.name)

@@ -77,7 +77,8 @@ def test_push_through_can_touches_and_moves_it(world, push):
     assert r.frames.contacts[0].sum() == 0  # nothing touched before the movement
     assert r.displacement[CAN] > 0.005, r.displacement
     others = np.arange(len(w.object_names)) != CAN
-    assert (r.displacement[others] < 1e-3).all(), r.displacement
+    assert not r.touched[others].any()
+    assert (r.displacement[others] < 2e-3).all(), r.displacement  # the can rolls 25 cm and grazes the gray box
     np.testing.assert_allclose(
         r.displacement, np.linalg.norm(r.final_poses[:, :3] - w.start_poses[:, :3], axis=1), atol=1e-9
     )

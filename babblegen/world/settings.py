@@ -22,10 +22,14 @@ class WorldSettings:
     fps: int = 10  # recorded frames per second of simulated time
     control_freq: int = 20  # joint targets per second
     sim_freq: int = 100  # physics steps per second
-    # PhysX's persistent contact manifolds (PCM). Its box-box contact generator runs approximate-reciprocal
-    # instructions (rcpps), whose results differ between CPU makers; without PCM no such instruction runs, so a run
-    # records the same values on Intel and AMD (docs/reproducibility.md). True: as runs made before the setting.
-    pcm: bool = False
+    # PhysX's persistent contact manifolds (PCM), with the scene's boxes (objects' parts, table, floor, obstacles)
+    # colliding as convex hulls of their corners. PCM's box-box contact generator runs approximate-reciprocal
+    # instructions (rcpps), whose results differ between CPU makers; as hulls no pair of boxes meets it (the arm's
+    # links never touch each other), so a run records the same values on Intel and AMD. Without PCM, PhysX's
+    # box-box generator pushes from up to both shapes' contact offsets (2 cm each) apart (docs/reproducibility.md).
+    # Runs made before: PCM on with PhysX boxes, then PCM off; they resume as they were made.
+    pcm: bool = True
+    box_hulls: bool = True
     max_joint_speed: float = 2.0  # rad/s on the fastest joint along the path: the arm's limit (its URDF's)
     # the longest movement out (planned, at max_joint_speed) a rollout executes: longer ones are infeasible
     # ("too_long"), found by planning alone; it bounds an episode's frames, and so its cost (0: no bound, the paper)

@@ -61,6 +61,7 @@ class World:
             sim_freq=s.sim_freq,
             control_freq=s.control_freq,
             pcm=s.pcm,
+            box_hulls=s.box_hulls,
             object_specs=task.objects,
         )
         self.env.reset(seed=seed)
