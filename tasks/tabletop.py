@@ -29,6 +29,7 @@ OBSTACLE_COLOR = [0.55, 0.6, 0.72, 1.0]  # static obstacles (TaskSpec.extra_obst
 WRIST_CAMERA_OFFSET = [-0.12, 0.0, 0.06]
 WRIST_CAMERA_TILT = [float(np.cos(0.2182)), 0.0, float(np.sin(0.2182)), 0.0]
 DEFAULT_MATERIAL = (0.3, 0.3, 0.0)  # PhysX's default material in SAPIEN: static, dynamic friction, restitution
+_CUBE_CORNERS = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], np.float32)  # a box's, unit
 
 
 class ObjectBuilder(ActorBuilder):
@@ -47,15 +48,22 @@ class ObjectBuilder(ActorBuilder):
         return component
 
 
+def _attach_hull(builder: ObjectBuilder, vertices, pose: sapien.Pose, density: float, physical):
+    """The convex hull PhysX makes from ``vertices`` (in the shape's frame, at ``pose`` on the body) as a collision
+    shape of ``builder``'s body; returns it."""
+    shape = sapien.physx.PhysxCollisionShapeConvexMesh(
+        vertices=np.asarray(vertices, dtype=np.float32), scale=np.ones(3, np.float32), material=physical
+    )
+    shape.local_pose = pose
+    shape.set_density(density)
+    builder.hulls.append(shape)
+    return shape
+
+
 def _add_hull(builder: ObjectBuilder, part: Part, density: float, physical, mat) -> None:
     """A convex hull PhysX makes from the part's points, and its visual: the hull PhysX made (flat shaded), so what
     is seen is what collides."""
-    shape = sapien.physx.PhysxCollisionShapeConvexMesh(
-        vertices=np.asarray(part.vertices, dtype=np.float32), scale=np.ones(3, np.float32), material=physical
-    )
-    shape.local_pose = sapien.Pose(p=list(part.offset))
-    shape.set_density(density)
-    builder.hulls.append(shape)
+    shape = _attach_hull(builder, part.vertices, sapien.Pose(p=list(part.offset)), density, physical)
     vertices = np.asarray(shape.get_vertices(), dtype=np.float32)
     corners = vertices[np.asarray(shape.get_triangles(), dtype=np.int64)].reshape(-1, 3)
     normal = np.cross(corners[1::3] - corners[0::3], corners[2::3] - corners[0::3])
@@ -78,15 +86,8 @@ def _add_box_collision(builder, half_size, pose: sapien.Pose, box_hulls: bool, d
         kw = {"density": density} if physical is None else {"density": density, "material": physical}
         builder.add_box_collision(pose=pose, half_size=list(half_size), **kw)
         return
-    corners = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], np.float32)
-    shape = sapien.physx.PhysxCollisionShapeConvexMesh(
-        vertices=corners * np.asarray(half_size, np.float32),
-        scale=np.ones(3, np.float32),
-        material=physical or sapien.physx.get_default_material(),
-    )
-    shape.local_pose = pose
-    shape.set_density(density)
-    builder.hulls.append(shape)
+    corners = _CUBE_CORNERS * np.asarray(half_size, np.float32)
+    _attach_hull(builder, corners, pose, density, physical or sapien.physx.get_default_material())
 
 
 def _add_part(builder, part: Part, density: float, physical, mat, box_hulls: bool = False) -> None:
