@@ -7,7 +7,8 @@ how fast the sphere moves.
 
 Per dataset: contact frames, objects touched, the share of surface points ever touched (per object, then the mean),
 the spread of push directions in the object's own frame (entropy of 16 sectors, bits; 4 is uniform), their number of
-sectors covered, and the median and 90th percentile of the sphere's speed at contact (m/s), overall and per shape.
+sectors covered, the median and 90th percentile of the sphere's speed at contact (m/s), overall and per shape, and
+the contacts in each band of speed.
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ import numpy as np
 
 REACH = 0.01  # metres between a sphere's surface and a surface point: a contact
 SECTORS = 16
+SPEED_BANDS = (0.0, 0.5, 1.0, 1.5, np.inf)  # m/s
 
 
 def main() -> None:
@@ -71,6 +73,12 @@ def main() -> None:
         print(f"  surface points touched per object: {cover:.3f} of {n_points}")
         print("  " + _directions(angles) + f"; sphere speed median {np.median(speeds):.2f} m/s, 90th percentile "
               f"{np.percentile(speeds, 90):.2f}" if len(speeds) else "  no contact")  # fmt: skip
+        if len(speeds):
+            counts = np.histogram(speeds, bins=SPEED_BANDS)[0]
+            edges = zip(SPEED_BANDS[:-1], SPEED_BANDS[1:], strict=True)
+            names = [f"{lo:g}-{hi:g}" if np.isfinite(hi) else f"over {lo:g}" for lo, hi in edges]
+            bands = ", ".join(f"{b} {n}" for b, n in zip(names, counts, strict=True))
+            print(f"  contacts by sphere speed (m/s): {bands}")
         for si, name in enumerate(SHAPES):
             sel = shapes == si
             if sel.sum() >= 20:
