@@ -1,0 +1,40 @@
+"""Score saved learned simulators (`babblegen evaluate --save-models DIR`) on test sets, without training again: per
+model and test set, the F1 of "moves", the error of where moved objects end as a multiple of "nothing moves" and the
+moved objects it is the median of. Each test set is scored on its own (one dataset each), for example each half of a
+test set made by two explorers.
+
+    python benchmarks/score_models.py eval/models test/ho_nv test/ho_rw
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+from pathlib import Path
+
+import numpy as np
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("models", type=Path, help="a folder of saved models (*.pt) or one model file")
+    parser.add_argument("tests", nargs="+", type=Path, help="test datasets, each scored on its own")
+    args = parser.parse_args()
+    os.environ.setdefault("HF_HUB_OFFLINE", "1")
+    from babblegen.worldmodel.api import load_model
+    from babblegen.worldmodel.episodes import read_dataset
+    from babblegen.worldmodel.metrics import score
+
+    files = sorted(args.models.glob("*.pt")) if args.models.is_dir() else [args.models]
+    tests = {str(t): read_dataset(t).episodes for t in args.tests}
+    for path in files:
+        model = load_model(path)
+        cells = []
+        for name, episodes in tests.items():
+            s = score(model.predict(episodes), episodes, np.zeros((len(episodes.scene.objects), 2)))["all"]
+            cells.append(f"{name}: F1 {s['f1']:.3f}, error {s['ratio']:.2f}x over {s['moved']} moved")
+        print(f"{path.name}: " + "; ".join(cells), flush=True)
+
+
+if __name__ == "__main__":
+    main()
