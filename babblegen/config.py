@@ -55,7 +55,8 @@ class RunConfig:
     rerun_frames: str = "ends"
     video_codec: str = "h264"  # the head camera's video: "h264" or "libsvtav1" (LeRobot's default)
     noveb: NovEBConfig = field(default_factory=NovEBConfig)
-    world: WorldSettings = field(default_factory=WorldSettings)
+    # a run's objects default to "auto", resolved for its task when it is validated (WorldSettings.for_task)
+    world: WorldSettings = field(default_factory=lambda: WorldSettings(objects="auto"))
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -67,7 +68,8 @@ class RunConfig:
         if unknown:
             raise ConfigError(f"unknown config keys: {', '.join(sorted(unknown))}")
         noveb = _sub(NovEBConfig, data.pop("noveb", {}), "noveb")
-        world = _sub(WorldSettings, data.pop("world", {}), "world")
+        world = data.pop("world", {})
+        world = _sub(WorldSettings, {"objects": "auto", **world} if isinstance(world, dict) else world, "world")
         _check_types(cls, data, "")
         try:
             return cls(noveb=noveb, world=world, **data)
@@ -110,6 +112,7 @@ class RunConfig:
                 f"task {self.task!r} declares no start distribution (TaskSpec.starts), so it cannot vary its starts; "
                 "use --starts fixed"
             )
+        self.world = self.world.for_task(TASKS[self.task])  # stored as resolved
         if self.world.objects != "paper":
             if self.world.starts != "varied":
                 raise ConfigError(
@@ -177,6 +180,7 @@ def resumed_config(stored: dict[str, Any], overrides: dict[str, Any] | None = No
     data["world"].setdefault("pcm", True)  # ... and PhysX generated contacts with persistent manifolds
     data["world"].setdefault("box_hulls", False)  # stored before the setting existed: boxes were PhysX's boxes
     data["world"].setdefault("starts", "fixed")  # stored before starts varied: every episode began from the task's
+    data["world"].setdefault("objects", "paper")  # stored before objects were drawn: the task's own, every episode
     for key, value in (overrides or {}).items():
         if value is None:
             continue

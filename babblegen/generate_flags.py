@@ -182,7 +182,8 @@ def generate_parser(sub) -> argparse.ArgumentParser:
         help="which objects stand on the table: 'paper', the paper's gray box, can, blue box and ball every episode; "
         "'varied', every new start draws its own (shape, size, mass, friction, restitution, colour; recorded per "
         "episode as factors of variation); 'heldout', shapes and property bands no varied draw produces, for test "
-        "sets. varied and heldout need --starts varied [default: paper]",
+        "sets. varied and heldout need --starts varied [default: varied with --starts varied (wall_tabletop: its own "
+        "objects), paper with --starts fixed]",
     )
     g.add_argument(
         "--num-objects",

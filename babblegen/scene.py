@@ -80,6 +80,9 @@ class TaskSpec:
     robot_uid: str = "pr2_like_arm"
     extra_obstacles: tuple[Box, ...] = field(default_factory=tuple)
     starts: StartDistribution | None = None  # where objects may start with ``starts = "varied"`` (None: nowhere)
+    # the object set a run with varied starts uses unless told (babblegen.objects): "varied", drawn per start, or
+    # "paper", the task's own, where they are the point of the scene
+    default_objects: str = "varied"
 
     def __post_init__(self) -> None:
         if self.starts is not None and len(self.starts.regions) != len(self.objects):

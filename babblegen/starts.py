@@ -233,6 +233,7 @@ def run_starts(task: TaskSpec, settings: WorldSettings, seed: int) -> StartSampl
     (`babblegen.objects`); None with fixed starts."""
     if settings.starts != "varied":
         return None
+    settings = settings.for_task(task)
     drawn = settings.objects != "paper"
     objects = ObjectSampler(settings.objects, settings.num_objects, seed, settings.object_ranges) if drawn else None
     return StartSampler(slot_task(task, settings.objects, settings.num_objects), seed, objects)

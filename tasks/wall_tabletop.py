@@ -34,6 +34,7 @@ SPEC = register_task(
         workspace=PAPER_SCENE.workspace,  # the same normalised [0,1]^3 box: over the table, up to 0.3 m above it
         camera=CameraSpec(eye=(0.05, 0.0, 1.32), target=(0.88, -0.08, TABLE_TOP), fov=0.92),
         # x 0.77..0.79, y -0.50..-0.20, from the table top up 6 cm
+        default_objects="paper",  # the crate, the bottle and the cubes around the wall are the point of the scene
         extra_obstacles=(Box("wall", (0.78, -0.35, TABLE_TOP + WALL_HEIGHT / 2), (0.01, 0.15, WALL_HEIGHT / 2)),),
         # varied starts: wide regions around each object's place (none overlapping the wall), whole in the head
         # camera's view; the purple cube stays behind the wall, the others in front of it

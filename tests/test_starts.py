@@ -3,6 +3,8 @@ clone is, the descriptor that compares before and after, and the settings that r
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -13,6 +15,7 @@ from babblegen.explorers.base import genome_key
 from babblegen.scene import TaskSpec, layout_poses
 from babblegen.starts import Start, StartSampler
 from babblegen.tasks import get_task
+from babblegen.world.settings import WorldSettings
 
 START = np.array([0.5, 0.0, 0.5])
 PI = np.pi
@@ -296,9 +299,31 @@ def test_resume_refuses_other_starts_and_runs_stored_before_resume_fixed():
     data = stored.to_dict()
     with pytest.raises(ConfigError, match="cannot change 'starts'"):
         resumed_config(data, {"starts": "fixed"})
-    del data["world"]["starts"]
+    del data["world"]["starts"], data["world"]["objects"]  # stored before either setting existed
     data["descriptor"] = "phash16"
-    assert resumed_config(data).world.starts == "fixed"
+    resumed = resumed_config(data)
+    assert (resumed.world.starts, resumed.world.objects) == ("fixed", "paper")
+
+
+def test_objects_default_to_varied_with_varied_starts_and_runs_stored_before_resume_paper():
+    tabletop, wall = get_task("noveb_tabletop"), get_task("wall_tabletop")
+    auto = WorldSettings(objects="auto")
+    assert auto.for_task(tabletop).objects == "varied"
+    assert replace(auto, starts="fixed").for_task(tabletop).objects == "paper"
+    assert auto.for_task(wall).objects == "paper", "the wall scene's own objects are its point"
+    assert WorldSettings(objects="heldout").for_task(tabletop).objects == "heldout", "a chosen set stays"
+    for config in (RunConfig(workers=1), RunConfig.from_dict({"world": {"fps": 10}})):
+        config.validate()
+        assert config.world.objects == "varied", "a run's default"
+    fixed = RunConfig.from_dict({"world": {"starts": "fixed"}, "descriptor": "phash16"})
+    fixed.validate()
+    assert fixed.world.objects == "paper"
+    stored = RunConfig(workers=1)
+    stored.validate()
+    data = stored.to_dict()
+    assert data["world"]["objects"] == "varied", "the resolved object set is stored, not 'auto'"
+    del data["world"]["objects"]  # a run stored with varied starts before objects were drawn
+    assert resumed_config(data).world.objects == "paper"
 
 
 def end_scene(start: Start, attempt: int) -> np.ndarray:

@@ -7,6 +7,7 @@ from typing import Any
 
 from babblegen.camera_views import CAMERA_PRESETS, MAX_CAMERA_SIDE, CameraView
 from babblegen.objects import ObjectRanges, check_object_set
+from babblegen.scene import TaskSpec
 
 MODALITIES = ("depth", "segmentation")
 RETURNS_HOME = ("retrace", "direct")  # back along the path out, or straight home in joint space where that is free
@@ -56,7 +57,10 @@ class WorldSettings:
     start_settle_seconds: float = 2.0  # a varied start settles until at rest, at most this long (else not used)
     # which objects stand on the table (babblegen.objects): "paper" (the task's own, every episode), "varied" (drawn
     # per start: shape, size, mass, friction, restitution, colour) or "heldout" (shapes and property bands no varied
-    # draw produces: test sets); how many (the task's four for "paper", 1 to 8 otherwise); what varied draws from
+    # draw produces: test sets); "auto" (`for_task`), a run's default (babblegen.config): with varied starts the
+    # task's default object set, "varied" unless its own objects are the point of the scene (since a world model
+    # trained on varied objects predicts new shapes and the paper's own objects as well: docs/objects.md), with fixed
+    # starts "paper"; how many (the task's four for "paper", 1 to 8 otherwise); what varied draws from
     objects: str = "paper"
     num_objects: int = 4
     object_ranges: ObjectRanges = field(default_factory=ObjectRanges)
@@ -68,7 +72,7 @@ class WorldSettings:
         object.__setattr__(self, "cameras", views)
         if not isinstance(self.object_ranges, ObjectRanges):
             object.__setattr__(self, "object_ranges", ObjectRanges(**dict(self.object_ranges)))
-        check_object_set(self.objects, self.num_objects)
+        check_object_set("varied" if self.objects == "auto" else self.objects, self.num_objects)
         names = [v.name for v in views]
         if "head" not in names:
             raise ValueError("the cameras must include 'head', the behaviour camera the search looks through")
@@ -94,6 +98,14 @@ class WorldSettings:
 
     def to_dict(self) -> dict:
         return asdict(self)
+
+    def for_task(self, task: TaskSpec) -> WorldSettings:
+        """These settings with ``objects = "auto"`` resolved for ``task``: its default object set with varied
+        starts, else the task's own objects ("paper")."""
+        if self.objects != "auto":
+            return self
+        varied = self.starts == "varied" and task.starts is not None
+        return replace(self, objects=task.default_objects if varied else "paper")
 
     @property
     def head(self) -> CameraView:

@@ -45,7 +45,7 @@ class World:
         envs.register_envs()  # the agents, and an env for every registered scene
         self.robot = robot = get_robot(task.robot_uid)
 
-        self.settings = s = settings or WorldSettings()
+        self.settings = s = (settings or WorldSettings()).for_task(task)
         # with drawn objects, the task's table and camera with the run's object slots (babblegen.objects)
         self.task = task = slot_task(task, s.objects, s.num_objects)
         self.rng = np.random.default_rng(seed)
