@@ -32,3 +32,19 @@ def test_coordinator_benchmark_runs_a_real_run_on_replayed_rollouts(tmp_path):
     two, alone = by_workers[2], by_workers[0]
     assert two["worker_seconds"] > 0 and two["wall"] >= two["worker_seconds"] / 2
     assert two["episodes_per_s"] > 0 and alone["wall"] < two["wall"]
+
+
+@pytest.mark.sim
+def test_start_sensitivity_replays_each_moved_episode_exactly_without_a_shift(small_heldout_dataset):
+    """benchmarks/start_sensitivity.py runs every episode in which an object moved again from its recorded start:
+    unshifted, each object ends exactly where it was recorded (error 0.00x, F1 1.000); shifted, a row per shift."""
+    done = subprocess.run(
+        [sys.executable, str(ROOT / "benchmarks" / "start_sensitivity.py"), str(small_heldout_dataset),
+         "--shifts", "0", "5", "--workers", "1"],
+        capture_output=True, text=True, timeout=600,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr[-3000:]
+    lines = done.stdout.splitlines()
+    assert "moved objects" in lines[0], done.stdout
+    assert "shift 0.0 mm, one draw: error 0.00x (median 0.00 cm), F1 1.000, within 1 cm 1.00" in lines[1]
+    assert lines[2].startswith("  shift 5.0 mm, one draw: error ")
