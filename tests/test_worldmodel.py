@@ -405,3 +405,23 @@ def test_the_push_frame_points_from_the_arm_to_the_object_and_turns_with_the_sce
         np.testing.assert_allclose(seen[0][0], seen[1][0], atol=1e-4)
         np.testing.assert_allclose(seen[0][1][:3], seen[1][1][:3], atol=1e-4)
         np.testing.assert_allclose(seen[0][2], seen[1][2], atol=1e-9)
+
+
+def test_a_goal_is_a_place_on_the_table_toppled_or_not():
+    """Planning goals: each episode's most-moved object, moved at least 5 cm and ended on the table (its centre
+    inside the table's edges and above its top), upright or toppled; one that fell to the floor, left the table's
+    edges or moved too little is none."""
+    from babblegen.worldmodel.planning import PlanningSettings, choose_goals
+
+    ends = {
+        "upright": pose(0.9, 0.2, 0.75),
+        "toppled": pose(0.9, 0.2, 0.75, tilt=np.pi / 2),  # a 10 cm cube on its side rests as high as upright
+        "toppled_low": pose(0.9, 0.2, 0.715, tilt=0.7),  # leaning on another face, lower than upright by 3.5 cm
+        "fell": pose(1.2, 0.2, 0.05),  # on the floor, below the top, still over the table's footprint
+        "off_edge": pose(1.4, 0.2, 0.75),
+        "short": pose(0.83, 0.2, 0.75),  # 3 cm
+    }
+    e = episodes([REST] * len(ends), [[end, *REST[1:]] for end in ends.values()])
+    none = np.zeros((len(e), 3), dtype=bool)
+    goals = choose_goals(e, PlanningSettings(goals=10, object_share=0.0), flags=(none, none))
+    assert goals == [(0, 0), (1, 0), (2, 0)]

@@ -213,7 +213,7 @@ def choose_goals(
     scene = test.scene
     x0, x1, y0, y1 = scene.table
     on_table = (final[..., 0] > x0) & (final[..., 0] < x1) & (final[..., 1] > y0) & (final[..., 1] < y1)
-    on_table &= final[..., 2] > scene.top + scene.half_heights[None] - 0.02
+    on_table &= final[..., 2] > scene.top  # above the top, upright or toppled: a goal is a place (x, y) on it
     ok = (moved * 100 >= settings.min_move_cm) & on_table
     touched, met = flags if flags is not None else contact_flags(test)
     by_object = ok & ~touched & met
