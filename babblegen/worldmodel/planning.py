@@ -78,6 +78,7 @@ class PlanningSettings:
         parts = [self.planner == "rank", self.goals, self.candidates, self.min_move_cm, self.far_cm, self.sigma]
         parts += [self.seed, self.object_share, len(PROPERTIES)]  # the goals' stored object vectors' length
         parts += ["poses"]  # starts stored as whole poses (before: x, y, z, yaw)
+        parts += ["toppled"]  # goal objects that ended on the table toppled as well (before: upright ones alone)
         raw = json.dumps([parts, sorted(set(test.source.tolist())), test.identity.tolist()]).encode()
         return hashlib.blake2b(raw, digest_size=12).hexdigest()
 
