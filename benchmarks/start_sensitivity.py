@@ -21,15 +21,28 @@ from pathlib import Path
 import numpy as np
 
 
-def scores(ends: np.ndarray, test) -> tuple[dict, float]:
-    """`metrics.score` of (E, K, 4) ends on the episodes ``test``, and the share of moved objects within 1 cm."""
-    from babblegen.worldmodel.episodes import outcomes
+def scores(ends: np.ndarray, test, moved: np.ndarray) -> tuple[dict, float]:
+    """`metrics.score` of (E, K, 4) ends on the episodes ``test``, and the share of its ``moved`` objects (E, K) that
+    end within 1 cm."""
     from babblegen.worldmodel.metrics import score
     from babblegen.worldmodel.poses import object_state
 
-    moved, _ = outcomes(test)
     near = np.linalg.norm(ends[..., :2] - object_state(test.final)[..., :2], axis=-1)[moved] < 0.01
     return score(ends, test, np.zeros((len(test.scene.objects), 2))), float(near.mean())
+
+
+def summary(runs: list[tuple[dict, float]], strata: tuple[str, ...]) -> str:
+    """One line of `scores` results, each number the mean over ``runs``."""
+    scored = [s for s, _ in runs]
+
+    def mean(stratum: str, key: str) -> float:
+        return float(np.mean([s[stratum][key] for s in scored]))
+
+    parts = ", ".join(f"{k.replace('_', ' ')} {mean(k, 'ratio'):.2f}x" for k in strata if k in scored[0])
+    return (
+        f"error {mean('all', 'ratio'):.2f}x (median {mean('all', 'err_cm'):.2f} cm), F1 {mean('all', 'f1'):.3f}, "
+        f"within 1 cm {np.mean([near for _, near in runs]):.2f}; {parts}"
+    )
 
 
 def shifted_ends(e, pick: np.ndarray, shift_mm: float, rng: np.random.Generator, workers: int) -> np.ndarray:
@@ -68,28 +81,21 @@ def main() -> None:
         if not len(pick):
             print(f"{root}: no object moved in any episode", flush=True)
             continue
-        test = e.take(pick)
+        test, moved = e.take(pick), moved[pick]
         first, final = object_state(test.first), object_state(test.final)
-        nothing = np.median(np.linalg.norm(first[..., :2] - final[..., :2], axis=-1)[moved[pick]]) * 100
-        print(f"{root}: {len(pick)} episodes with {int(moved[pick].sum())} moved objects, 'nothing moves' errs "
+        nothing = np.median(np.linalg.norm(first[..., :2] - final[..., :2], axis=-1)[moved]) * 100
+        print(f"{root}: {len(pick)} episodes with {int(moved.sum())} moved objects, 'nothing moves' errs "
               f"{nothing:.1f} cm", flush=True)  # fmt: skip
         for shift in args.shifts:
             draws = [
                 shifted_ends(e, pick, shift, np.random.default_rng([args.seed, round(shift * 1000), d]), args.workers)
                 for d in range(args.draws)
             ]
-            rows = {"one draw": [scores(x, test) for x in draws]}
+            rows = {"one draw": [scores(x, test, moved) for x in draws]}
             if args.draws > 1:
-                rows["centre"] = [scores(np.mean(draws, axis=0), test)]
+                rows["centre"] = [scores(np.mean(draws, axis=0), test, moved)]
             for name, runs in rows.items():
-                mean = lambda f, runs=runs: float(np.mean([f(s, near) for s, near in runs]))  # noqa: E731
-                strata = ", ".join(
-                    f"{stratum.replace('_', ' ')} {mean(lambda s, _, k=stratum: s[k]['ratio']):.2f}x"
-                    for stratum in STRATA[1:] if stratum in runs[0][0]
-                )  # fmt: skip
-                print(f"  shift {shift:.1f} mm, {name}: error {mean(lambda s, _: s['all']['ratio']):.2f}x (median "
-                      f"{mean(lambda s, _: s['all']['err_cm']):.2f} cm), F1 {mean(lambda s, _: s['all']['f1']):.3f}, "
-                      f"within 1 cm {mean(lambda _, near: near):.2f}; {strata}", flush=True)  # fmt: skip
+                print(f"  shift {shift:.1f} mm, {name}: {summary(runs, STRATA[1:])}", flush=True)
 
 
 if __name__ == "__main__":
