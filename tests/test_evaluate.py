@@ -38,11 +38,16 @@ def test_every_source_is_scored_at_equal_attempts_and_episodes(evaluation, small
         for runs in block["sources"].values():
             scores = runs[0]["scores"]["held"]
             assert 0.0 <= scores["macro"]["false_moves"] <= 1.0
-            assert set(scores) >= {"all", "macro"}
+            assert set(scores) >= {"all", "macro", "shapes"}
+            # each shape's objects alone: together they are every object, moved or not
+            assert sum(sc["moved"] for sc in scores["shapes"].values()) == scores["all"]["moved"]
     held = result["tests"]["held"]
     assert sum(held["strata"].values()) == held["episodes"]
     table = (evaluation / "evaluation.md").read_text()
     assert "| noveb |" in table and "| random |" in table and "nothing moves" in table
+    shapes = result["blocks"][0]["sources"]["noveb"][0]["scores"]["held"]["shapes"]
+    assert "By shape on held" in table
+    assert all(f"{shape} ({sc['moved']} moved): F1 / error" in table for shape, sc in shapes.items())
 
 
 def test_an_attempt_budget_cuts_each_dataset_to_its_first_attempts(small_noveb_dataset):

@@ -136,6 +136,13 @@ def test_scores_by_hand():
     assert s["nothing_moved"]["false_moves"] == pytest.approx(1 / 3)
     assert s["one_object"]["f1"] == pytest.approx(1.0)
     assert s["macro"]["f1"] == pytest.approx(1.0)
+    # by shape, each shape's objects alone: the box moved once and was predicted to (F1 1, error 4 of 10 cm); the
+    # can never moved and was predicted to move in one episode of two; the ball neither
+    box, can, ball = (s["shapes"][k] for k in ("box", "cylinder", "sphere"))
+    assert set(s["shapes"]) == {"box", "cylinder", "sphere"}
+    assert (box["moved"], box["f1"], box["ratio"], box["false_moves"]) == (1, 1.0, pytest.approx(0.4), 0.0)
+    assert can["moved"] == 0 and np.isnan(can["f1"]) and can["false_moves"] == pytest.approx(0.5)
+    assert ball["moved"] == 0 and ball["false_moves"] == 0.0 and box["episodes"] == can["episodes"] == 2
     # against the training set's mean displacement: 8 cm along x for the box errs 2 cm
     train = episodes([REST], [[pose(0.88, 0.2, 0.75), REST[1], REST[2]]])
     np.testing.assert_allclose(mean_displacement(train)[0], [0.08, 0.0], atol=1e-9)

@@ -11,14 +11,16 @@ For every object in every test episode the model predicts where it ends up (x, y
 - ``false_moves``: the share of object-episodes that did not move but are predicted to.
 
 Each is reported on the whole test set and on each stratum (`STRATA`); ``macro`` averages the strata that have
-episodes (F1 and the error ratio over those with moved objects).
+episodes (F1 and the error ratio over those with moved objects); ``shapes`` holds the same for each shape
+(`babblegen.shapes.SHAPES`) of the test set's objects, counting those objects alone.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from babblegen.worldmodel.episodes import MOVED, STRATA, EpisodeSet, outcomes
+from babblegen.shapes import SHAPES
+from babblegen.worldmodel.episodes import MOVED, PROPERTY, STRATA, EpisodeSet, outcomes
 from babblegen.worldmodel.poses import object_state, wrap
 
 
@@ -34,10 +36,19 @@ def _median(values: np.ndarray) -> float:
     return float(np.median(values)) if values.size else float("nan")
 
 
-def _scores(pred: np.ndarray, first: np.ndarray, final: np.ndarray, moved: np.ndarray, mean: np.ndarray, sym):
+def shapes_of(episodes: EpisodeSet) -> np.ndarray:
+    """(E, K) the shape (`SHAPES`) of each episode's objects."""
+    first = PROPERTY[f"shape_{SHAPES[0]}"]
+    return np.array(SHAPES)[episodes.objects[..., first : first + len(SHAPES)].argmax(axis=-1)]
+
+
+def _scores(pred: np.ndarray, first: np.ndarray, final: np.ndarray, moved: np.ndarray, mean: np.ndarray, sym,
+            pick: np.ndarray | None = None):  # fmt: skip
     """The scores of one group of episodes: ``pred``, ``first``, ``final`` (E, K, 4) states, ``sym`` (E, K) the
-    objects' yaw symmetries."""
-    pred_moved = np.linalg.norm(pred[..., :3] - first[..., :3], axis=-1) > MOVED
+    objects' yaw symmetries, ``pick`` (E, K) the objects counted (None: all)."""
+    pick = np.ones(moved.shape, dtype=bool) if pick is None else pick
+    moved = moved & pick
+    pred_moved = (np.linalg.norm(pred[..., :3] - first[..., :3], axis=-1) > MOVED) & pick
     tp = float((pred_moved & moved).sum())
     denominator = float(pred_moved.sum() + moved.sum())
     err = np.linalg.norm(pred[..., :2] - final[..., :2], axis=-1)[moved] * 100
@@ -47,9 +58,9 @@ def _scores(pred: np.ndarray, first: np.ndarray, final: np.ndarray, moved: np.nd
     has_yaw = moved & (sym > 0)
     period = np.where(sym > 0, sym, 2 * np.pi)
     yaw_err = np.abs(wrap(pred[..., 3] - final[..., 3], period))[has_yaw]
-    still = ~moved
+    still = ~moved & pick
     out = {
-        "episodes": int(len(pred)),
+        "episodes": int(pick.any(axis=1).sum()),
         "moved": int(moved.sum()),
         "f1": 2 * tp / denominator if moved.any() else float("nan"),
         "err_cm": _median(err),
@@ -82,4 +93,6 @@ def score(pred: np.ndarray, test: EpisodeSet, mean: np.ndarray) -> dict:
         "false_moves": float(np.nanmean([s["false_moves"] for s in present])) if present else float("nan"),
     }
     out["macro"]["skill"] = 1 - out["macro"]["ratio"]
+    shape = shapes_of(test)
+    out["shapes"] = {s: _scores(pred, first, final, moved, mean, sym, shape == s) for s in SHAPES if (shape == s).any()}
     return out

@@ -51,6 +51,27 @@ BASELINES = {
 }
 
 
+def shape_table(block: dict, test: str) -> list[str]:
+    """Per source, F1 and error on each shape's objects of ``test`` alone (none: no table)."""
+    results = [r for rs in block["sources"].values() for r in rs]
+    shapes = {}  # shape -> its moved objects (the same test set for every source)
+    for r in results:
+        for shape, sc in r.get("scores", {}).get(test, {}).get("shapes", {}).items():
+            shapes.setdefault(shape, sc["moved"])
+    if not shapes:
+        return []
+    header = ["trained on"] + [f"{shape} ({moved} moved): F1 / error" for shape, moved in shapes.items()]
+    rows = []
+    for name, rs in block["sources"].items():
+        row = [name]
+        for shape in shapes:
+            f1 = cell(_values(rs, ("scores", test, "shapes", shape, "f1")))
+            ratio = cell(_values(rs, ("scores", test, "shapes", shape, "ratio")), 2)
+            row.append(f"{f1} / {ratio}")
+        rows.append(row)
+    return [f"By shape on {test} (each shape's objects alone):", ""] + _table(header, rows) + [""]
+
+
 def planning_table(result: dict, block: dict) -> list[str]:
     """Per source (pooled over repeats) and per baseline: success overall and per goal stratum, with 95 %
     intervals over goals; for the cem planner, how often the executed movement differed from the scored one."""
@@ -185,6 +206,8 @@ def markdown(result: dict) -> str:
             row.append(cell(_values(results, ("scores", t0, "nothing_moved", "false_moves"))))
             rows.append(row)
         lines += [f"By outcome on {t0}:", ""] + _table(header, rows) + [""]
+        for t in tests:
+            lines += shape_table(block, t)
         if planning and "baselines" in result["planning"]:
             lines += ["Planning, by goal stratum:", ""] + planning_table(result, block) + [""]
     return "\n".join(lines)
