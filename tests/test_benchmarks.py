@@ -48,3 +48,25 @@ def test_start_sensitivity_replays_each_moved_episode_exactly_without_a_shift(sm
     assert "moved objects" in lines[0], done.stdout
     assert "shift 0.0 mm, one draw: error 0.00x (median 0.00 cm), F1 1.000, within 1 cm 1.00" in lines[1]
     assert lines[2].startswith("  shift 5.0 mm, one draw: error ")
+
+
+@pytest.mark.sim
+def test_score_models_by_shape_splits_the_moved_objects(small_heldout_dataset, tmp_path):
+    """benchmarks/score_models.py on a saved model: one line per model and, with --by-shape, a line per shape that
+    moved, whose moved objects add up to the test set's."""
+    from babblegen.worldmodel.episodes import read_dataset
+    from babblegen.worldmodel.simulator import GraphSettings, LearnedSimulator
+
+    model = LearnedSimulator.fit(read_dataset(small_heldout_dataset).episodes, GraphSettings(steps=30, members=2))
+    path = model.save(tmp_path / "tiny.pt")
+    done = subprocess.run(
+        [sys.executable, str(ROOT / "benchmarks" / "score_models.py"), str(path), str(small_heldout_dataset),
+         "--by-shape"],
+        capture_output=True, text=True, timeout=600, env={**os.environ, "HF_HUB_OFFLINE": "1"},
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr[-3000:]
+    first, *shapes = done.stdout.splitlines()
+    assert first.startswith("tiny.pt: ") and first.endswith(" moved"), done.stdout
+    assert shapes and all(line.startswith(f"  {small_heldout_dataset} ") for line in shapes), done.stdout
+    total = int(first.split(" over ")[1].split()[0])
+    assert sum(int(line.split(" over ")[1].split()[0]) for line in shapes) == total
