@@ -42,6 +42,7 @@ def main() -> None:
 
 
 def line(name: str, s: dict) -> str:
+    """One group's F1, error and moved objects, as a line."""
     return f"{name}: F1 {s['f1']:.3f}, error {s['ratio']:.2f}x over {s['moved']} moved"
 
 
