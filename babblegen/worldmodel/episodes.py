@@ -169,6 +169,12 @@ class EpisodeSet:
         return self.objects[..., PROPERTY["yaw_symmetry"]]
 
     @property
+    def shapes(self) -> np.ndarray:
+        """(E, K) each object's shape (one of `SHAPES`)."""
+        first = PROPERTY[f"shape_{SHAPES[0]}"]
+        return np.array(SHAPES)[self.objects[..., first : first + len(SHAPES)].argmax(axis=-1)]
+
+    @property
     def spheres(self) -> np.ndarray:
         """(E, K) whether the object is a sphere (it rolls away rather than stands tilted)."""
         return self.objects[..., PROPERTY["shape_sphere"]] > 0.5

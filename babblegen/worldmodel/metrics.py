@@ -20,7 +20,7 @@ from __future__ import annotations
 import numpy as np
 
 from babblegen.shapes import SHAPES
-from babblegen.worldmodel.episodes import MOVED, PROPERTY, STRATA, EpisodeSet, outcomes
+from babblegen.worldmodel.episodes import MOVED, STRATA, EpisodeSet, outcomes
 from babblegen.worldmodel.poses import object_state, wrap
 
 
@@ -34,12 +34,6 @@ def mean_displacement(train: EpisodeSet) -> np.ndarray:
 
 def _median(values: np.ndarray) -> float:
     return float(np.median(values)) if values.size else float("nan")
-
-
-def shapes_of(episodes: EpisodeSet) -> np.ndarray:
-    """(E, K) the shape (`SHAPES`) of each episode's objects."""
-    first = PROPERTY[f"shape_{SHAPES[0]}"]
-    return np.array(SHAPES)[episodes.objects[..., first : first + len(SHAPES)].argmax(axis=-1)]
 
 
 def _scores(pred: np.ndarray, first: np.ndarray, final: np.ndarray, moved: np.ndarray, mean: np.ndarray, sym,
@@ -93,6 +87,6 @@ def score(pred: np.ndarray, test: EpisodeSet, mean: np.ndarray) -> dict:
         "false_moves": float(np.nanmean([s["false_moves"] for s in present])) if present else float("nan"),
     }
     out["macro"]["skill"] = 1 - out["macro"]["ratio"]
-    shape = shapes_of(test)
+    shape = test.shapes
     out["shapes"] = {s: _scores(pred, first, final, moved, mean, sym, shape == s) for s in SHAPES if (shape == s).any()}
     return out
