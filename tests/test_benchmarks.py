@@ -53,7 +53,8 @@ def test_start_sensitivity_replays_each_moved_episode_exactly_without_a_shift(sm
 @pytest.mark.sim
 def test_score_models_by_shape_splits_the_moved_objects(small_heldout_dataset, tmp_path):
     """benchmarks/score_models.py on a saved model: one line per model and, with --by-shape, a line per shape that
-    moved, whose moved objects add up to the test set's."""
+    moved, whose moved objects add up to the test set's; with --true-frames, a line per count over the same moved
+    objects. A count under 1 is refused."""
     from babblegen.worldmodel.episodes import read_dataset
     from babblegen.worldmodel.simulator import GraphSettings, LearnedSimulator
 
@@ -61,12 +62,25 @@ def test_score_models_by_shape_splits_the_moved_objects(small_heldout_dataset, t
     path = model.save(tmp_path / "tiny.pt")
     done = subprocess.run(
         [sys.executable, str(ROOT / "benchmarks" / "score_models.py"), str(path), str(small_heldout_dataset),
-         "--by-shape"],
+         "--by-shape", "--true-frames", "1", "3"],
         capture_output=True, text=True, timeout=600, env={**os.environ, "HF_HUB_OFFLINE": "1"},
     )  # fmt: skip
     assert done.returncode == 0, done.stderr[-3000:]
-    first, *shapes = done.stdout.splitlines()
+    first, *rest = done.stdout.splitlines()
+    shapes, replays = rest[:-2], rest[-2:]
+    for count, line in zip((1, 3), replays, strict=True):
+        assert line.startswith(f"  {small_heldout_dataset} with its first {count} frames of motion recorded: F1 ")
+        assert line.split(" over ")[1] == first.split(" over ")[1], done.stdout
     assert first.startswith("tiny.pt: ") and first.endswith(" moved"), done.stdout
     assert shapes and all(line.startswith(f"  {small_heldout_dataset} ") for line in shapes), done.stdout
     total = int(first.split(" over ")[1].split()[0])
     assert sum(int(line.split(" over ")[1].split()[0]) for line in shapes) == total
+
+
+def test_score_models_refuses_a_count_of_no_frames(tmp_path):
+    done = subprocess.run(
+        [sys.executable, str(ROOT / "benchmarks" / "score_models.py"), str(tmp_path), str(tmp_path), "--true-frames",
+         "0"],
+        capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert done.returncode == 2 and "--true-frames counts frames: 1 or more" in done.stderr

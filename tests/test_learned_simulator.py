@@ -5,6 +5,8 @@ trained on a few of them must say where held-out pushes send the box."""
 
 from __future__ import annotations
 
+import copy
+
 import numpy as np
 import pytest
 import torch
@@ -18,7 +20,7 @@ from babblegen.worldmodel import contact_graph as cg
 from babblegen.worldmodel.arm import ArmSpheres
 from babblegen.worldmodel.episodes import EpisodeSet, EvaluationError, Scene, object_vector
 from babblegen.worldmodel.poses import quat_multiply, rotate
-from babblegen.worldmodel.simulator import FORMAT, GraphSettings, LearnedSimulator, surfaces
+from babblegen.worldmodel.simulator import FORMAT, GraphSettings, LearnedSimulator, first_moving_frames, surfaces
 
 TASK = get_task("noveb_tabletop")
 ROBOT = get_robot(TASK.robot_uid)
@@ -216,3 +218,32 @@ def test_a_saved_model_loads_back_and_predicts_the_same(planner: ArmPlanner, tra
     torch.save({"weights": 1}, tmp_path / "other.pt")
     with pytest.raises(EvaluationError, match="is not a babblegen learned simulator"):
         LearnedSimulator.load(tmp_path / "other.pt")
+
+
+def test_replayed_frames_move_an_object_as_recorded(planner: ArmPlanner, trained: LearnedSimulator):
+    """`rollout_poses` with ``replay``: every frame replayed ends each object exactly where it was recorded. With the
+    model's gate shut (it moves nothing), a push's first F frames of motion replayed leave the cube at its first
+    pose plus the recorded shift over those F frames, worked out here from the poses; the far sphere, which never
+    moves, has no frame marked and stays."""
+    item = push(planner, (0.8, -0.1), 0.2, LIGHT)
+    e = episodes([item])
+    poses = item["poses"]
+    args = ([poses[0]], e.actions, [item["states"][0]], e.objects)
+    every = np.ones((len(poses) - 1, 2), dtype=bool)
+    final, _ = trained.rollout_poses(*args, replay=(e.poses, [every]))
+    np.testing.assert_allclose(final[0], poses[-1], atol=1e-9)
+
+    still = copy.copy(trained)
+    still.gate = np.inf
+    start = int(np.flatnonzero(np.linalg.norm(np.diff(poses[:, 0, :3], axis=0), axis=-1) > 0)[0])
+    for count in (1, 3):
+        frames = first_moving_frames(poses, count)
+        assert np.flatnonzero(frames[:, 0]).tolist() == list(range(start, start + count))
+        assert not frames[:, 1].any()
+        final, _ = still.rollout_poses(*args, replay=(e.poses, [frames]))
+        shift = poses[start + count, 0, :3] - poses[start, 0, :3]
+        assert np.linalg.norm(shift) > 0.005
+        np.testing.assert_allclose(final[0, 0, :3], poses[0, 0, :3] + shift, atol=1e-9)
+        np.testing.assert_allclose(final[0, 1], poses[0, 1], atol=1e-12)
+    final, _ = still.rollout_poses(*args, replay=(e.poses, [first_moving_frames(poses, 0)]))
+    np.testing.assert_allclose(final[0], poses[0], atol=1e-12)

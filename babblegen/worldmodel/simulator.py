@@ -28,7 +28,7 @@ from babblegen.worldmodel.arm import ArmFilter, ArmSpheres
 from babblegen.worldmodel.episodes import PROPERTIES, PROPERTY, SUMMARY, EpisodeSet, EvaluationError, Scene
 from babblegen.worldmodel.gated import GatedModel
 from babblegen.worldmodel.gnn import GraphNet, tensors
-from babblegen.worldmodel.poses import as_poses, object_state
+from babblegen.worldmodel.poses import as_poses, object_state, quat_conjugate, quat_multiply
 
 GATES = (-1.5, -1.0, -0.5, 0.0, 0.5, 1.0)  # the "moves" thresholds (logits) a model chooses among
 FORMAT = 2  # the saved model's layout (2: arm edges read the frame after)
@@ -207,8 +207,12 @@ class LearnedSimulator(GatedModel):
         final = object_state(final)
         return (final, disagree) if spread else final
 
-    def rollout_poses(self, first, actions, joints0, objects=None) -> tuple[np.ndarray, np.ndarray]:
-        """`rollout`'s final (E, K, 7) poses and the members' spread (E, K)."""
+    def rollout_poses(
+        self, first, actions, joints0, objects=None, replay: tuple[list, list] | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """`rollout`'s final (E, K, 7) poses and the members' spread (E, K). ``replay`` (a diagnosis: how much of
+        the error a frame holds): per episode its recorded (T, K, 7) poses and (T - 1, K) which objects' motion over
+        which frames is the recorded one, applied to where the rollout has the object, in place of the model's."""
         lengths = np.array([len(a) for a in actions])
         horizon = int(lengths.max())
         e, k = len(actions), len(first[0])
@@ -246,6 +250,8 @@ class LearnedSimulator(GatedModel):
                     motion = motion * (out[..., 0].mean(axis=0) > self.gate)[..., None]
                     disagree[rows] += np.linalg.norm(out[..., 1:4].std(axis=0), axis=-1)
                     now[rows] = cg.apply_motion(now[rows], motion, g.frame)
+                if replay is not None:
+                    _replay(now, before, idx, t, *replay)
                 ended = idx[lengths[idx] - 2 == t]
                 final[ended] = now[ended]
         final[lengths == 1] = now[lengths == 1]
@@ -303,6 +309,31 @@ class LearnedSimulator(GatedModel):
         model = cls(scene, ArmFilter(data["arm"]), net, settings)
         model.gate, model.trained_steps = float(data["gate"]), int(data["trained_steps"])
         return model
+
+
+def first_moving_frames(poses: np.ndarray, count: int) -> np.ndarray:
+    """(T - 1, K) each object's first ``count`` frames of motion in (T, K, 7) recorded poses: from the first frame it
+    moves over (`contact_graph.moving`), moving or not after it."""
+    moves = cg.moving(poses[:-1], poses[1:])
+    out = np.zeros_like(moves)
+    for k in range(moves.shape[1]):
+        start = np.flatnonzero(moves[:, k])
+        if len(start):
+            out[start[0] : start[0] + count, k] = True
+    return out
+
+
+def _replay(now, before, idx, t, recorded: list[np.ndarray], frames: list[np.ndarray]) -> None:
+    """Where ``frames`` marks frame ``t`` of an object of the live episodes ``idx``, its pose ``now`` becomes its
+    pose ``before`` moved as the recording moves it over that frame (`rollout_poses`' ``replay``)."""
+    for e in idx:
+        if t >= len(frames[e]):
+            continue
+        for k in np.flatnonzero(frames[e][t]):
+            a, b = recorded[e][t, k], recorded[e][t + 1, k]
+            now[e, k, :3] = before[e, k, :3] + (b[:3] - a[:3])
+            q = quat_multiply(quat_multiply(b[3:], quat_conjugate(a[3:])), before[e, k, 3:])
+            now[e, k, 3:] = q / np.linalg.norm(q)
 
 
 def _batched_loss(net: GraphNet, x: dict, y: torch.Tensor, mv: torch.Tensor, chunk: int = 2048) -> float:
