@@ -172,10 +172,11 @@ def push_free() -> dict:
             "objects": np.stack([object_vector(cube(LIGHT)), object_vector(FAR)])}  # fmt: skip
 
 
-def test_arm_edges_read_where_the_sphere_goes_the_frame_after():
+def test_arm_edges_read_where_the_sphere_goes_the_frame_after_and_came_from_the_frame_before():
     """A sphere comes up to a cube's face this frame: its edges carry its next frame's motion and how near that
     sweep passes each edge's point, worked out here from the segment and the point. Going on into the cube, the
-    sweep passes through the face (a negative gap); going back, it passes no nearer than where it is now."""
+    sweep passes through the face (a negative gap); going back, it passes no nearer than where it is now. They also
+    carry the frame before's motion, how near that sweep passed the point where the cube was then, and when."""
     e = episodes([push_free()])
     surf = surfaces(e.objects)
     box = e.poses[0][:1]  # (1, K, 7), the cube unturned
@@ -183,23 +184,33 @@ def test_arm_edges_read_where_the_sphere_goes_the_frame_after():
     x_face = box[0, 0, 0] - HALF
     a0 = np.array([[[x_face - 0.05, box[0, 0, 1], box[0, 0, 2]]]])
     a1 = np.array([[[x_face - 0.021, box[0, 0, 1], box[0, 0, 2]]]])  # 1 mm from the face
+    ap = a0 - [0.03, 0.0, 0.01]  # the frame before: coming from further back and below
     for step in (0.06, -0.06):
         a2 = a1 + [step, 0.0, 0.0]
-        g = cg.build(box, box, a0, a1, a2, r, surf.take(np.array([0])), SCENE.table, SCENE.top)
+        g = cg.build(box, box, a0, a1, a2, r, surf.take(np.array([0])), SCENE.table, SCENE.top, ap)
         assert g.frame[0, 0] == pytest.approx(0.0, abs=1e-6)  # the push frame is the world's: the sphere comes from -x
         feats = g.arm[0, 0][g.arm_mask[0, 0]]
         assert len(feats) == cg.ARM_EDGES
-        np.testing.assert_allclose(feats[:, -4:-1], np.tile([step * cg.POS, 0, 0], (len(feats), 1)), atol=1e-5)
+        after, before = feats[:, 15:19], feats[:, 19:]  # the frame after's motion and gap; the frame before's
+        came = np.tile([0.03 * cg.POS, 0, 0.01 * cg.POS], (len(feats), 1))
+        np.testing.assert_allclose(before[:, :3], came, atol=1e-5)
+        np.testing.assert_allclose(after[:, :3], np.tile([step * cg.POS, 0, 0], (len(feats), 1)), atol=1e-5)
         points = box[0, 0, :3] + feats[:, :3] / cg.POS  # each edge's surface point, from its own feature
         seg = a2[0, 0] - a1[0, 0]
         along = np.clip((points - a1[0, 0]) @ seg / (seg @ seg), 0, 1)
         gaps = np.linalg.norm(points - (a1[0, 0] + along[:, None] * seg), axis=1) - r[0]
-        np.testing.assert_allclose(feats[:, -1], np.minimum(gaps, cg.NEXT_NEAR) * cg.VEL, atol=1e-3)
+        np.testing.assert_allclose(after[:, 3], np.minimum(gaps, cg.NEXT_NEAR) * cg.VEL, atol=1e-3)
         now = np.linalg.norm(points - a1[0, 0], axis=1) - r[0]
         if step > 0:
-            assert feats[:, -1].min() < -1.0  # through the face: over 1 cm inside the sphere's sweep
+            assert after[:, 3].min() < -1.0  # through the face: over 1 cm inside the sphere's sweep
         else:
-            np.testing.assert_allclose(feats[:, -1], np.minimum(now, cg.NEXT_NEAR) * cg.VEL, atol=1e-3)
+            np.testing.assert_allclose(after[:, 3], np.minimum(now, cg.NEXT_NEAR) * cg.VEL, atol=1e-3)
+        seg = a0[0, 0] - ap[0, 0]
+        when = np.clip((points - ap[0, 0]) @ seg / (seg @ seg), 0, 1)
+        gaps = np.linalg.norm(points - (ap[0, 0] + when[:, None] * seg), axis=1) - r[0]
+        np.testing.assert_allclose(before[:, 3], np.minimum(gaps, cg.NEXT_NEAR) * cg.VEL, atol=1e-3)
+        np.testing.assert_allclose(before[:, 4], when, atol=1e-5)
+        assert (before[:, 3] > 0).all() and (when == 1).all()  # it came up to the face: nearest at the frame's end
 
 
 def test_a_saved_model_loads_back_and_predicts_the_same(planner: ArmPlanner, trained: LearnedSimulator, tmp_path):

@@ -14,8 +14,9 @@ edges.
   object) and a surface point, over the segment the sphere sweeps this frame: the point and its normal, where the
   sphere passes nearest relative to the point, the sphere's motion, radius and gap; and where the sphere goes the
   frame after (its motion then, and how near it passes the point, up to ``NEXT_NEAR``): a strike lasts less than
-  a frame, and whether the arm goes on into the object or leaves it decides whether it starts; masked beyond
-  ``ARM_REACH``;
+  a frame, and whether the arm goes on into the object or leaves it decides whether it starts; and where it came
+  from the frame before (its motion then, how near it passed the point where the object was then, and when in that
+  frame): when in its frame a strike came sets how fast the struck object goes on; masked beyond ``ARM_REACH``;
 - **table edges**: the object's ``TABLE_EDGES`` lowest surface points: where they are, their normals, their height
   above the table and how far inside its edges (up to ``EDGE_NEAR``: an edge farther away reads the same);
 - **object edges**: per other object, the ``OBJECT_EDGES`` nearest pairs of points (among each one's
@@ -47,7 +48,7 @@ NEXT_NEAR = 0.1  # metres between a sphere's surface and a point the frame after
 MOVING = (0.0005, 0.005)  # metres, radians in one frame: an object moving
 POS, VEL, ROT = 10.0, 100.0, 10.0  # positions in dm, motions per frame in cm, rotations in rad / 10: near unit scale
 
-NODE_FEATURES, ARM_FEATURES, TABLE_FEATURES, OBJECT_FEATURES = 19, 19, 8, 18
+NODE_FEATURES, ARM_FEATURES, TABLE_FEATURES, OBJECT_FEATURES = 19, 24, 8, 18
 
 
 @dataclass
@@ -121,11 +122,11 @@ def _smallest(values: np.ndarray, count: int) -> np.ndarray:
     return np.argpartition(values, count - 1, axis=-1)[..., :count]
 
 
-def _arm_edges(world, rel_f, normal_f, s0, s1, s2, r, yaw) -> tuple[np.ndarray, np.ndarray]:
-    """Arm edges of B objects: their surface points (B, P, 3) in the world, and relative to their centres and their
-    normals in their push frames (``yaw`` (B,)); the M candidate spheres' sweeps ``s0`` -> ``s1`` and on to ``s2``
-    the frame after (B, M, 3), and radii (B, M). Returns the `ARM_EDGES` nearest pairs' features
-    (B, EA, ARM_FEATURES) and gaps (B, EA)."""
+def _arm_edges(world, world_prev, rel_f, normal_f, sp, s0, s1, s2, r, yaw) -> tuple[np.ndarray, np.ndarray]:
+    """Arm edges of B objects: their surface points (B, P, 3) in the world now and a frame before (``world_prev``),
+    and relative to their centres and their normals in their push frames (``yaw`` (B,)); the M candidate spheres'
+    sweeps ``s0`` -> ``s1``, on to ``s2`` the frame after and from ``sp`` the frame before (B, M, 3), and radii
+    (B, M). Returns the `ARM_EDGES` nearest pairs' features (B, EA, ARM_FEATURES) and gaps (B, EA)."""
     b, p = world.shape[:2]
     t, c, gap = _segment_gap(world[:, None], s0[:, :, None], s1[:, :, None], r[..., None])  # (B, M, P)
     flat = gap.reshape(b, -1)
@@ -136,6 +137,9 @@ def _arm_edges(world, rel_f, normal_f, s0, s1, s2, r, yaw) -> tuple[np.ndarray, 
     centre = c.reshape(b, -1, 3)[rows, pick]  # the sphere's centre where it passes nearest
     to_frame = -yaw[:, None]
     _, _, next_gap = _segment_gap(world[rows, p_of], s1[rows, m_of], s2[rows, m_of], r[rows, m_of])
+    # the frame before: how near and when the sphere passed the point where the object was then (a strike's time
+    # within its frame, which sets how fast an object struck then goes now)
+    prev_along, _, prev_gap = _segment_gap(world_prev[rows, p_of], sp[rows, m_of], s0[rows, m_of], r[rows, m_of])
     feats = np.concatenate(
         [
             rel_f[rows, p_of] * POS,
@@ -147,6 +151,9 @@ def _arm_edges(world, rel_f, normal_f, s0, s1, s2, r, yaw) -> tuple[np.ndarray, 
             t.reshape(b, -1)[rows, pick][..., None],
             turn_z((s2 - s1)[rows, m_of], to_frame) * POS,
             np.minimum(next_gap, NEXT_NEAR)[..., None] * VEL,
+            turn_z((s0 - sp)[rows, m_of], to_frame) * POS,
+            np.minimum(prev_gap, NEXT_NEAR)[..., None] * VEL,
+            prev_along[..., None],
         ],
         axis=-1,
     )
@@ -205,14 +212,17 @@ def build(
     surfaces: Surfaces,
     table: tuple[float, float, float, float],
     top: float,
+    arm_prev: np.ndarray | None = None,
 ) -> Graph:
     """The graph of N scenes at one frame: ``poses`` and ``before`` (N, K, 7) the objects' poses now and a frame
     before, ``arm0``, ``arm1`` and ``arm2`` (N, S, 3) the arm's spheres now, a frame later and two frames later (the
-    last frame's again at an episode's end), ``table`` its top's x0, x1, y0, y1 and ``top`` its height."""
+    last frame's again at an episode's end), ``arm_prev`` a frame before (None: as now, the first frame's),
+    ``table`` its top's x0, x1, y0, y1 and ``top`` its height."""
     n, k = poses.shape[:2]
     f32 = np.float32
-    poses, before, arm0, arm1, arm2, radii = (
-        np.asarray(v, dtype=f32) for v in (poses, before, arm0, arm1, arm2, radii)
+    arm_prev = arm0 if arm_prev is None else arm_prev
+    poses, before, arm_prev, arm0, arm1, arm2, radii = (
+        np.asarray(v, dtype=f32) for v in (poses, before, arm_prev, arm0, arm1, arm2, radii)
     )
     surfaces = Surfaces(*(np.asarray(v, dtype=f32) for v in (surfaces.points, surfaces.normals, surfaces.radius,
                                                             surfaces.physics)))  # fmt: skip
@@ -244,9 +254,12 @@ def build(
     rows, objs = np.nonzero(gap_c.min(axis=-1) - surfaces.radius < ARM_REACH)
     if len(rows):
         m = near[rows, objs]  # (B, M)
-        s0, s1, s2 = arm0[rows[:, None], m], arm1[rows[:, None], m], arm2[rows[:, None], m]  # (B, M, 3)
-        feats, gaps = _arm_edges(world[rows, objs], rel_f[rows, objs], normal_f[rows, objs], s0, s1, s2, radii[m],
-                                 yaw[rows, objs])  # fmt: skip
+        sp, s0 = arm_prev[rows[:, None], m], arm0[rows[:, None], m]
+        s1, s2 = arm1[rows[:, None], m], arm2[rows[:, None], m]  # (B, M, 3)
+        then = before[rows, objs]
+        world_prev = rotate(then[:, None, 3:], surfaces.points[rows, objs]) + then[:, None, :3]
+        feats, gaps = _arm_edges(world[rows, objs], world_prev, rel_f[rows, objs], normal_f[rows, objs], sp, s0, s1,
+                                 s2, radii[m], yaw[rows, objs])  # fmt: skip
         arm[rows, objs], arm_mask[rows, objs] = feats, gaps < ARM_REACH
 
     # table edges: the lowest points

@@ -31,7 +31,7 @@ from babblegen.worldmodel.gnn import GraphNet, tensors
 from babblegen.worldmodel.poses import as_poses, object_state, quat_conjugate, quat_multiply
 
 GATES = (-1.5, -1.0, -0.5, 0.0, 0.5, 1.0)  # the "moves" thresholds (logits) a model chooses among
-FORMAT = 2  # the saved model's layout (2: arm edges read the frame after)
+FORMAT = 3  # the saved model's layout (2: arm edges read the frame after; 3: and the frame before)
 
 
 @dataclass
@@ -89,7 +89,7 @@ def episode_rows(
             continue
         g = cg.build(
             now[live], before[live], balls[:-1][live], balls[1:][live], np.concatenate([balls[2:], balls[-1:]])[live],
-            spheres.radii, surf.take(live), scene.table, scene.top,
+            spheres.radii, surf.take(live), scene.table, scene.top, np.concatenate([balls[:1], balls[:-2]])[live],
         )  # fmt: skip
         y, m = cg.targets(now[live], after[live], g.frame)
         graphs.append(g)
@@ -243,7 +243,7 @@ class LearnedSimulator(GatedModel):
                     g = cg.build(
                         now[rows], previous, balls[rows, t], balls[rows, t + 1], balls[rows, min(t + 2, horizon - 1)],
                         radii, surf.take(rows),
-                        self.scene.table, self.scene.top,
+                        self.scene.table, self.scene.top, balls[rows, max(t - 1, 0)],
                     )  # fmt: skip
                     out = self.net(tensors(g)).numpy()  # (M, R, K, 7)
                     motion = out[..., 1:].mean(axis=0)
