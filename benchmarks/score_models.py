@@ -44,11 +44,12 @@ def main() -> None:
         model = load_model(path)
         cells, shapes, replays = [], [], []
         for name, episodes in tests.items():
-            scores = score(model.predict(episodes), episodes, np.zeros((len(episodes.scene.objects), 2)))
+            no_mean = np.zeros((len(episodes.scene.objects), 2))  # the skill against a mean is not printed
+            scores = score(model.predict(episodes), episodes, no_mean)
             cells.append(line(name, scores["all"]))
             shapes += [line(f"{name} {shape}", s) for shape, s in scores["shapes"].items() if s["moved"]]
             for count in args.true_frames:
-                scores = score(replayed(model, episodes, count), episodes, np.zeros((len(episodes.scene.objects), 2)))
+                scores = score(replayed(model, episodes, count), episodes, no_mean)
                 replays.append(line(f"{name} with its first {count} frames of motion recorded", scores["all"]))
         print(f"{path.name}: " + "; ".join(cells), flush=True)
         if args.by_shape:
