@@ -142,6 +142,41 @@ def test_ik_solution_stays_near_seed(world):
     assert np.abs(q - q0).max() < 0.05
 
 
+def test_batched_ik_gives_each_target_its_own_answer(world):
+    """`ArmPlanner.solve_iks` checks every target's candidates for collisions in one batch; each target still gets
+    exactly what it gets alone: the same configuration to the bit, or the same reason there is none."""
+    w = world
+    rng = np.random.default_rng(7)
+    targets = np.vstack([
+        w.task.workspace.to_world(rng.random((24, 3))), TABLE_TARGET, FAR_TARGET, REACHABLE_IN_FRONT
+    ])  # fmt: skip
+    seeds = np.vstack([np.broadcast_to(w.home, (14, w.kin.dof)), random_configs(w, len(targets) - 14, 8)])
+    batched = w.planning.solve_iks(targets, seeds)
+    reasons = Counter(r for _, r in batched)
+    assert reasons[""] >= 12 and reasons["target_in_collision"] + reasons["no_ik"] >= 1, reasons
+    assert reasons["out_of_reach"] >= 1, reasons
+    for (q, reason), target, seed in zip(batched, targets, seeds, strict=True):
+        alone, alone_reason = w.solve_ik(target, seed)
+        assert reason == alone_reason
+        assert (q is None and alone is None) or np.array_equal(q, alone)
+
+
+def test_collision_answers_do_not_depend_on_the_batch(world):
+    """Large batches are checked in chunks (`collision.CHUNK`): every configuration's sphere centres and collision
+    answer are those it has alone, across chunk borders."""
+    from babblegen.world.collision import CHUNK
+
+    w = world
+    q = random_configs(w, 2 * CHUNK + 37, 9)
+    hit = w.collision.in_collision(q)
+    assert 0.2 < hit.mean() < 0.9  # both answers occur
+    alone = np.array([any(v[0] for v in w.collision.collisions(c[None]).values()) for c in q])
+    assert np.array_equal(hit, alone)
+    centres = w.collision.sphere_centres(q)
+    for i in (0, CHUNK - 1, CHUNK, 2 * CHUNK + 36):
+        assert np.array_equal(centres[i], w.collision.sphere_centres(q[i : i + 1])[0])
+
+
 # --- infeasible commands ----------------------------------------------------------------------------------
 def test_target_inside_table_is_in_collision(world):
     w = world

@@ -14,6 +14,8 @@ from babblegen.shapes import Box
 from babblegen.world.exact import matvec, row_norm
 from babblegen.world.kinematics import ArmKinematics, Shape
 
+CHUNK = 256  # configurations per batch of `SphereCollisionModel.in_collision`
+
 
 def shape_spheres(shape: Shape) -> tuple[np.ndarray, np.ndarray]:
     """Spheres (centres in the link frame, radii) covering a primitive.
@@ -91,7 +93,14 @@ class SphereCollisionModel:
         self.pair_reach = self.radii[self.pair_a] + self.radii[self.pair_b] + self_margin
 
     def sphere_centres(self, q: np.ndarray) -> np.ndarray:
-        """World centres of all spheres, shape (B, n_spheres, 3)."""
+        """World centres of all spheres, shape (B, n_spheres, 3); ``CHUNK`` configurations at a time (each one's
+        centres are computed alone, so chunks change only the speed)."""
+        q = np.asarray(q, dtype=np.float64)
+        if len(q) > CHUNK:
+            out = np.empty((len(q), len(self.radii), 3))
+            for at in range(0, len(q), CHUNK):
+                out[at : at + CHUNK] = self.sphere_centres(q[at : at + CHUNK])
+            return out
         tf = self.kin.link_transforms(q)[:, self.link_of_sphere]
         return matvec(tf[..., :3, :3], self.local) + tf[..., :3, 3]
 
@@ -107,8 +116,13 @@ class SphereCollisionModel:
         return out
 
     def in_collision(self, q: np.ndarray) -> np.ndarray:
-        """(B,) True where a configuration touches an obstacle or itself."""
-        return np.logical_or.reduce(list(self.collisions(q).values()))
+        """(B,) True where a configuration touches an obstacle or itself. Checked ``CHUNK`` configurations at a
+        time: each configuration's answer is computed alone (elementwise), so this changes nothing but the speed,
+        and the temporaries stay in cache (a batch of 20,000 runs about 3x slower than the same in chunks)."""
+        q = np.asarray(q, dtype=np.float64)
+        if len(q) <= CHUNK:
+            return np.logical_or.reduce(list(self.collisions(q).values()))
+        return np.concatenate([self.in_collision(q[at : at + CHUNK]) for at in range(0, len(q), CHUNK)])
 
     def motion_free(self, q0: np.ndarray, q1: np.ndarray, resolution: float = 0.03) -> bool:
         """Whether the straight joint-space motion q0 -> q1 is free, checked every `resolution` radians."""

@@ -121,19 +121,14 @@ class ArmPlanner:
                 dist = row_norm(self.bank_tool[None] - targets[pending][:, None])
                 starts = self.bank_q[np.argsort(dist, axis=1, kind="stable")[:, :n_bank]]
             q, err = self.kin.inverse_positions(targets[pending], starts, tol=s.ik_tolerance * 0.5)
-            left = []
-            for j, i in enumerate(pending):
-                if self._choose(q[j], err[j], seeds[i], out, i):
-                    found_any[i] = True
-                    if out[i][0] is not None:
-                        continue
-                left.append(i)
-            pending = np.array(left, dtype=np.int64)
+            converged = self._choose(q, err, seeds[pending], out, pending)
+            found_any[pending[converged]] = True
+            pending = np.array([i for i in pending if out[i][0] is None], dtype=np.int64)
         for i in pending:  # random restarts
             rng = np.random.default_rng(np.frombuffer(np.round(targets[i], 9).tobytes(), dtype=np.uint32))
             for starts in [rng.uniform(self.kin.lower, self.kin.upper, (s.ik_seeds, self.kin.dof)) for _ in range(2)]:
                 q, err = self.kin.inverse_position(targets[i], starts, tol=s.ik_tolerance * 0.5)
-                if self._choose(q, err, seeds[i], out, i):
+                if self._choose(q[None], err[None], seeds[i][None], out, [i])[0]:
                     found_any[i] = True
                     if out[i][0] is not None:
                         break
@@ -141,16 +136,22 @@ class ArmPlanner:
                 out[i] = (None, "target_in_collision" if found_any[i] else "no_ik")
         return out
 
-    def _choose(self, q: np.ndarray, err: np.ndarray, seed: np.ndarray, out: list, i: int) -> bool:
-        """Among one stage's solutions (M, dof) of target ``i``, the collision-free converged one nearest ``seed``
-        goes to ``out[i]``; whether any converged."""
+    def _choose(self, q: np.ndarray, err: np.ndarray, seeds: np.ndarray, out: list, idx) -> np.ndarray:
+        """Among one stage's solutions (P, M, dof) of targets ``idx`` (P), each target's collision-free converged
+        one nearest its seed goes to ``out[i]``; (P,) whether any of its solutions converged. The candidates of all
+        targets are checked for collisions in one batch: each one's answer is what it would be alone."""
         ok = err < self.settings.ik_tolerance
-        if not ok.any():
-            return False
-        cand = q[ok][~self.collision.in_collision(q[ok])]
-        if len(cand):
-            out[i] = (cand[np.argmin(np.abs(cand - seed).sum(axis=1))], "")
-        return True
+        converged = ok.any(axis=1)
+        owner = np.nonzero(ok)[0]
+        cand = q[ok]
+        if not len(cand):
+            return converged
+        free = ~self.collision.in_collision(cand)
+        for j, i in enumerate(idx):
+            mine = cand[(owner == j) & free]
+            if len(mine):
+                out[i] = (mine[np.argmin(np.abs(mine - seeds[j]).sum(axis=1))], "")
+        return converged
 
     def plan_command(self, command: Command) -> Plan:
         """Joint path home -> targets (not yet back), or the reason it does not exist."""
