@@ -179,14 +179,23 @@ def _directions(rng: np.random.Generator, n: int) -> np.ndarray:
 
 def farthest_points(points: np.ndarray, n: int) -> np.ndarray:
     """Indices of ``n`` of (m, 3) points chosen one at a time, each the farthest from those already chosen (the
-    first: the farthest from their mean): an even cover of a surface."""
-    first = int(np.argmax(np.linalg.norm(points - points.mean(axis=0), axis=1)))
+    first: the farthest from their mean): an even cover of a surface.
+
+    Distances are summed per coordinate row, ``(dx² + dy²) + dz²``, the order in which numpy's
+    ``linalg.norm(..., axis=1)`` sums a row of three: the same distances to the bit, about 3x faster."""
+    x, y, z = np.ascontiguousarray(np.asarray(points, dtype=np.float64).T)
+    mean = points.mean(axis=0)
+
+    def distance(cx: np.ndarray, cy: np.ndarray, cz: np.ndarray) -> np.ndarray:
+        return np.sqrt((cx * cx + cy * cy) + cz * cz)
+
+    first = int(np.argmax(distance(x - mean[0], y - mean[1], z - mean[2])))
     chosen = [first]
-    nearest = np.linalg.norm(points - points[first], axis=1)
+    nearest = distance(x - x[first], y - y[first], z - z[first])
     for _ in range(min(n, len(points)) - 1):
         nxt = int(np.argmax(nearest))
         chosen.append(nxt)
-        nearest = np.minimum(nearest, np.linalg.norm(points - points[nxt], axis=1))
+        np.minimum(nearest, distance(x - x[nxt], y - y[nxt], z - z[nxt]), out=nearest)
     return np.array(chosen)
 
 
