@@ -136,7 +136,9 @@ class ArmPlanner:
                 out[i] = (None, "target_in_collision" if found_any[i] else "no_ik")
         return out
 
-    def _choose(self, q: np.ndarray, err: np.ndarray, seeds: np.ndarray, out: list, idx) -> np.ndarray:
+    def _choose(
+        self, q: np.ndarray, err: np.ndarray, seeds: np.ndarray, out: list, idx: np.ndarray | list[int]
+    ) -> np.ndarray:
         """Among one stage's solutions (P, M, dof) of targets ``idx`` (P), each target's collision-free converged
         one nearest its seed goes to ``out[i]``; (P,) whether any of its solutions converged. The candidates of all
         targets are checked for collisions in one batch: each one's answer is what it would be alone."""
