@@ -143,6 +143,15 @@ def test_planning_records_the_planner_goals_and_intervals(small_noveb_dataset, s
     assert 0.0 <= lo <= run["model"] <= hi <= 1.0
     assert len(run["goal_success"]) == 2 and run["rollouts"] > 0
     assert run["executed"]["differs"] == 0.0  # what was scored is what ran
+    # each goal's miss, executed, decides its success; the model's own prediction of it sits beside
+    miss, predicted = np.array(run["goal_miss_cm"]), np.array(run["goal_predicted_miss_cm"])
+    assert len(miss) == len(predicted) == 2
+    assert np.array_equal(np.nan_to_num(miss, nan=np.inf) <= 3.0, np.array(run["goal_success"]) == 1.0)
+    chosen = np.isfinite(predicted)  # a prediction wherever the model chose a genome, nowhere else
+    assert chosen.sum() == round((1 - run["no_plan"]) * 2) and (predicted[chosen] >= 0).all()
+    assert not (np.isfinite(miss) & ~chosen).any()
+    table = (tmp_path / "evaluation.md").read_text()
+    assert "median miss, predicted / executed (cm)" in table
     pooled = saved["blocks"][0]["planning"]["noveb"]
     assert pooled["model"] == run["model"] and pooled["ci95"] == run["ci95"]
     assert saved["planning"]["ceiling"]["goals"] == ceiling["goals"]

@@ -376,6 +376,7 @@ def cem_scores(model, task: PlanningTask, settings: PlanningSettings) -> dict:
     g_count = len(task.goal_object)
     genomes: list[np.ndarray | None] = [None] * g_count
     scored: list[np.ndarray | None] = [None] * g_count
+    predicted = np.full(g_count, np.nan)
     search, search_cpu, rollouts = 0.0, 0.0, 0
     for root in sorted(set(task.source.tolist())):
         idx = np.flatnonzero(task.source == root)
@@ -388,6 +389,7 @@ def cem_scores(model, task: PlanningTask, settings: PlanningSettings) -> dict:
         rollouts += result.rollouts
         for j, g in enumerate(idx):
             genomes[g], scored[g] = result.genomes[j], result.actions[j]
+            predicted[g] = result.predicted_miss[j] if result.genomes[j] is not None else np.nan
     t0 = time.perf_counter()
     run = [g for g in range(g_count) if genomes[g] is not None]
     specs = task.specs or [None] * g_count
@@ -412,8 +414,13 @@ def cem_scores(model, task: PlanningTask, settings: PlanningSettings) -> dict:
     success = reached(final_xy, task.goal_xy, settings.success_cm).astype(float)
     out = by_stratum(task, success)
     out["model"] = out.pop("rate")
+    miss = np.linalg.norm(final_xy - task.goal_xy, axis=1) * 100
     out.update(
         goal_success=success.tolist(),
+        # per goal, cm from its goal: where the model predicted its choice leaves the goal object and where the
+        # choice, executed, left it (NaN: no choice, or not executable)
+        goal_predicted_miss_cm=(predicted * 100).tolist(),
+        goal_miss_cm=miss.tolist(),
         search_seconds=search,
         search_cpu_seconds=search_cpu,
         rollouts=rollouts,

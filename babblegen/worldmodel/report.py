@@ -72,6 +72,17 @@ def shape_table(block: dict, test: str) -> list[str]:
     return [f"By shape on {test} (each shape's objects alone):", ""] + _table(header, rows) + [""]
 
 
+def _misses(results: list[dict]) -> str:
+    """The median distance of the goal object from its goal after the model's choices, over goals and repeats:
+    as the model predicted it and as executed ("-" for results made before these were kept)."""
+    medians = []
+    for key in ("goal_predicted_miss_cm", "goal_miss_cm"):
+        values = np.concatenate([np.asarray(r["planning"].get(key, []), dtype=float) for r in results])
+        values = values[np.isfinite(values)]
+        medians.append(f"{np.median(values):.1f}" if len(values) else "-")
+    return " / ".join(medians)
+
+
 def planning_table(result: dict, block: dict) -> list[str]:
     """Per source (pooled over repeats) and per baseline: success overall and per goal stratum, with 95 %
     intervals over goals; for the cem planner, how often the executed movement differed from the scored one."""
@@ -80,7 +91,8 @@ def planning_table(result: dict, block: dict) -> list[str]:
     header = ["planner / baseline", "all"] + [f"{GOAL_STRATA.get(s, s)} ({p['strata'][s]})" for s in strata]
     cem = p.get("planner") == "cem"
     if cem:
-        header += ["executed differs / infeasible", "search s per model (CPU)"]
+        header += ["median miss, predicted / executed (cm)", "executed differs / infeasible"]
+        header += ["search s per model (CPU)"]
     rows = []
     for name, pooled in block.get("planning", {}).items():
         row = [f"model trained on {name}", interval(pooled["model"], pooled["ci95"])]
@@ -91,7 +103,7 @@ def planning_table(result: dict, block: dict) -> list[str]:
             infeasible = cell(_values(results, ("planning", "executed", "infeasible")), 2)
             wall = cell(_values(results, ("planning", "search_seconds")), 0)
             cpu = cell(_values(results, ("planning", "search_cpu_seconds")), 0)
-            row += [f"{differs} / {infeasible}", f"{wall} ({cpu})"]
+            row += [_misses(results), f"{differs} / {infeasible}", f"{wall} ({cpu})"]
         rows.append(row)
     if "ceiling" in p:
         c = p["ceiling"]
