@@ -183,7 +183,8 @@ def farthest_points(points: np.ndarray, n: int) -> np.ndarray:
 
     Distances are summed per coordinate row, ``(dx² + dy²) + dz²``, the order in which numpy's
     ``linalg.norm(..., axis=1)`` sums a row of three: the same distances to the bit, about 3x faster."""
-    x, y, z = np.ascontiguousarray(np.asarray(points, dtype=np.float64).T)
+    points = np.asarray(points, dtype=np.float64)
+    x, y, z = np.ascontiguousarray(points.T)
     mean = points.mean(axis=0)
 
     def distance(cx: np.ndarray, cy: np.ndarray, cz: np.ndarray) -> np.ndarray:
