@@ -47,6 +47,15 @@ def test_every_source_is_scored_at_equal_attempts_and_episodes(evaluation, small
     assert "| noveb |" in table and "| random |" in table and "nothing moves" in table
     shapes = result["blocks"][0]["sources"]["noveb"][0]["scores"]["held"]["shapes"]
     assert "By shape on held" in table
+    # where each model ends the moved objects, in units of their true moves: one pair per moved object, their median
+    # along the move the score's, and the figure of them
+    for block in result["blocks"]:
+        for runs in block["sources"].values():
+            ends, held = np.asarray(runs[0]["ends"]["held"]), runs[0]["scores"]["held"]["all"]
+            assert ends.shape == (held["moved"], 2)
+            assert np.median(ends[:, 0]) == pytest.approx(held["along"], abs=1e-3)
+    assert "How far along its true move each model ends the moved objects" in table
+    assert (evaluation / "ends.png").read_bytes().startswith(b"\x89PNG")
     assert all(f"{shape} ({sc['moved']} moved): F1 / error" in table for shape, sc in shapes.items())
 
 

@@ -20,7 +20,7 @@ from babblegen.worldmodel.episodes import (
     object_vector,
     outcomes,
 )
-from babblegen.worldmodel.metrics import mean_displacement, score
+from babblegen.worldmodel.metrics import in_true_units, mean_displacement, score
 from babblegen.worldmodel.poses import object_state
 
 GRAY = (0.5, 0.5, 0.5, 1.0)
@@ -133,6 +133,7 @@ def test_scores_by_hand():
     # moves: truth {box in ep 0}, predicted {box in ep 0, can in ep 1}: F1 = 2 * 1 / (2 + 1)
     assert s["all"]["f1"] == pytest.approx(2 / 3)
     assert s["all"]["false_moves"] == pytest.approx(1 / 5)
+    assert s["all"]["along"] == pytest.approx(0.6)  # 6 of the box's 10 cm along x
     assert s["nothing_moved"]["false_moves"] == pytest.approx(1 / 3)
     assert s["one_object"]["f1"] == pytest.approx(1.0)
     assert s["macro"]["f1"] == pytest.approx(1.0)
@@ -149,6 +150,15 @@ def test_scores_by_hand():
     s = score(pred, test, mean=mean_displacement(train))
     assert s["all"]["mean_cm"] == pytest.approx(2.0)
     assert s["all"]["mean_skill"] == pytest.approx(1 - 4.0 / 2.0)
+
+
+def test_ends_in_units_of_the_true_move():
+    """A true move of 10 cm along +y: a prediction of 5 cm along it is half way, one of 2 cm along -x is across it to
+    the right (negative), one of 20 cm along -y is twice as far the wrong way."""
+    true = np.array([0.0, 0.1])
+    predicted = np.array([[0.0, 0.05], [-0.02, 0.0], [0.0, -0.2], [0.03, 0.1]])
+    units = in_true_units(predicted, np.broadcast_to(true, predicted.shape))
+    np.testing.assert_allclose(units, [[0.5, 0.0], [0.0, 0.2], [-2.0, 0.0], [1.0, -0.3]], atol=1e-12)
 
 
 def test_take_and_union_keep_episodes_together():

@@ -24,8 +24,9 @@ goals. --planner rank: the model ranks K executed candidates, the goal's own mov
 Each --train source is NAME=DIR[,DIR...], one dataset per repeat; each --test set is NAME=DIR[,DIR...], the union of
 its datasets, seeded apart from every training dataset. --attempts cuts every training dataset to its first N
 attempts (equal simulation); with --equal episodes (or both, the default) every source is then cut to as many
-episodes as the smallest holds. Writes OUT/evaluation.md, OUT/evaluation.json and, for two budgets or more,
-OUT/budgets.png. The models: babblegen/worldmodel/simulator.py (graph) and baseline.py (mlp); the measures:
+episodes as the smallest holds. Writes OUT/evaluation.md, OUT/evaluation.json, OUT/ends.png (where each model
+ends the test sets' moved objects, in units of their true moves) and, for two budgets or more, OUT/budgets.png.
+The models: babblegen/worldmodel/simulator.py (graph) and baseline.py (mlp); the measures:
 docs/world_model.md."""
 
 

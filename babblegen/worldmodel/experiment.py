@@ -19,7 +19,7 @@ import numpy as np
 
 from babblegen.worldmodel.baseline import TrainSettings, WorldModel
 from babblegen.worldmodel.episodes import STRATA, Dataset, EpisodeSet, EvaluationError, outcomes
-from babblegen.worldmodel.metrics import mean_displacement, score
+from babblegen.worldmodel.metrics import in_true_units, mean_displacement, score
 from babblegen.worldmodel.planning import (
     PlanningSettings,
     PlanningTask,
@@ -109,10 +109,24 @@ def _fit_and_score(job: tuple[str, int, EpisodeSet, GraphSettings | TrainSetting
     out = {"source": name, "repeat": repeat, "episodes": len(train), "steps": model.trained_steps}
     if _shared["save"] is not None and hasattr(model, "save"):
         out["saved"] = str(model.save(model_file(_shared["save"], name, attempts, equal, repeat)))
-    out["scores"] = {t: score(model.predict(e), e, mean) for t, e in tests.items()}
+    out["scores"] = {}
+    for t, e in tests.items():
+        pred = model.predict(e)
+        out["scores"][t] = score(pred, e, mean)
+        if repeat == 0:  # where each moved object ends, for the report's figure (ends.png)
+            out.setdefault("ends", {})[t] = moved_ends(pred, e)
     if plan is not None:
         out["planning"] = plan_scores(model, plan, _shared["plan_settings"])
     return out
+
+
+def moved_ends(pred: np.ndarray, test: EpisodeSet) -> list[list[float]]:
+    """Per object that moved in ``test``: where ``pred`` (E, K, 4) ends it, in units of its true displacement
+    (`metrics.in_true_units`), to 3 decimals."""
+    first, final = object_state(test.first), object_state(test.final)
+    moved, _ = outcomes(test)
+    units = in_true_units(pred[..., :2] - first[..., :2], final[..., :2] - first[..., :2])[moved]
+    return np.round(units, 3).tolist()
 
 
 def nothing_moves(tests: dict[str, EpisodeSet]) -> dict:

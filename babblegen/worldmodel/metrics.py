@@ -8,7 +8,9 @@ For every object in every test episode the model predicts where it ends up (x, y
   displacement of that object (over its moved episodes); ``ratio`` is ``err_cm / nothing_cm`` and ``skill`` is
   ``1 - ratio`` (0: no better than "nothing moves"; 1: exact), ``mean_skill`` the same against the mean;
 - ``yaw_deg``: the median error of the final yaw of the moved objects that have one (boxes, modulo their symmetry);
-- ``false_moves``: the share of object-episodes that did not move but are predicted to.
+- ``false_moves``: the share of object-episodes that did not move but are predicted to;
+- ``along``: the median over the moved objects of the predicted (dx, dy) along the true one, in its units
+  (`in_true_units`: 1 as far as it went, 0 not at all, below 0 the wrong way).
 
 Each is reported on the whole test set and on each stratum (`STRATA`); ``macro`` averages the strata that have
 episodes (F1 and the error ratio over those with moved objects); ``shapes`` holds the same for each shape
@@ -30,6 +32,15 @@ def mean_displacement(train: EpisodeSet) -> np.ndarray:
     d = train.final[..., :2] - train.first[..., :2]
     counts = moved.sum(axis=0)
     return np.where(counts[:, None] > 0, (d * moved[..., None]).sum(axis=0) / np.maximum(counts, 1)[:, None], 0.0)
+
+
+def in_true_units(predicted: np.ndarray, true: np.ndarray) -> np.ndarray:
+    """(..., 2) predicted (dx, dy) displacements (..., 2) in units of the true ones: along the true displacement
+    (1: as far as it went, 0: not at all) and across it (positive to its left)."""
+    length2 = np.maximum((true**2).sum(axis=-1), 1e-12)
+    along = (predicted * true).sum(axis=-1) / length2
+    across = (true[..., 0] * predicted[..., 1] - true[..., 1] * predicted[..., 0]) / length2
+    return np.stack([along, across], axis=-1)
 
 
 def _median(values: np.ndarray) -> float:
@@ -62,6 +73,7 @@ def _scores(pred: np.ndarray, first: np.ndarray, final: np.ndarray, moved: np.nd
         "mean_cm": _median(mean_err),
         "yaw_deg": float(np.degrees(_median(yaw_err))),
         "false_moves": float(pred_moved[still].mean()) if still.any() else float("nan"),
+        "along": _median(in_true_units(pred[..., :2] - first[..., :2], final[..., :2] - first[..., :2])[moved][:, 0]),
     }
     out["ratio"] = out["err_cm"] / out["nothing_cm"] if moved.any() else float("nan")
     out["skill"] = 1 - out["ratio"]

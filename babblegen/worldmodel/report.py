@@ -1,5 +1,5 @@
-"""The evaluation's results as tables (``evaluation.md``), numbers (``evaluation.json``) and a figure of each score
-against the attempt budget (``budgets.png``)."""
+"""The evaluation's results as tables (``evaluation.md``), numbers (``evaluation.json``), a figure of each score
+against the attempt budget (``budgets.png``) and one of where the models end the moved objects (``ends.png``)."""
 
 from __future__ import annotations
 
@@ -130,6 +130,22 @@ def planning_table(result: dict, block: dict) -> list[str]:
     return _table(header, rows)
 
 
+def _along(block: dict, tests: list[str]) -> list[str]:
+    """A line: per test set and source, how far along their true moves the models end the moved objects."""
+    key = ("all", "along")
+    if not any(np.isfinite(_values(r, ("scores", t, *key))).any() for r in block["sources"].values() for t in tests):
+        return []  # an evaluation.json written before it was recorded
+    parts = [
+        f"{t}: " + ", ".join(f"{n} {cell(_values(r, ('scores', t, *key)), 2)}" for n, r in block["sources"].items())
+        for t in tests
+    ]
+    return [
+        "How far along its true move each model ends the moved objects (median; 1: where they ended, 0: where they "
+        "started; `ends.png` shows each object): " + "; ".join(parts) + ".",
+        "",
+    ]
+
+
 def block_title(block: dict) -> str:
     budget = "the whole datasets" if block["attempts"] is None else f"{block['attempts']:,} attempts"
     sizes = block["sizes"]
@@ -205,6 +221,7 @@ def markdown(result: dict) -> str:
         nothing = [NOTHING, "-"] + ["0", "1", "0"] * len(tests)
         rows.append(nothing + (["-"] * (4 if rank else 1) if planning else []))
         lines += _table(header, rows) + [""]
+        lines += _along(block, tests)
         t0 = tests[0]
         header = ["trained on"] + [f"{s}: F1 / error" for s in STRATA if s != "nothing_moved"]
         header += ["nothing_moved: false moves"]
@@ -269,6 +286,48 @@ def figure(result: dict, path: Path) -> bool:
     return True
 
 
+def ends_figure(result: dict, path: Path) -> bool:
+    """Where each source's model ends the test sets' moved objects, in units of their true displacement (the first
+    repeat, at the largest budget, equal attempts): one panel per source and test set, the truth at (1, 0) and
+    "nothing moves" at (0, 0). False when no model recorded its ends, and nothing is drawn."""
+    blocks = [b for b in result["blocks"] if any(r[0].get("ends") for r in b["sources"].values())]
+    if not blocks:
+        return False
+    block = max(blocks, key=lambda b: (np.inf if b["attempts"] is None else b["attempts"], b["equal"] == "attempts"))
+    sources, tests = list(block["sources"]), list(result["tests"])
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(len(sources), len(tests), figsize=(3.6 * len(tests), 3.2 * len(sources)), squeeze=False)
+    for row, name in zip(axes, sources, strict=True):
+        ends = block["sources"][name][0].get("ends", {})
+        for ax, test in zip(row, tests, strict=True):
+            units = np.asarray(ends.get(test, []), dtype=float).reshape(-1, 2)
+            ax.axvline(0.0, color="0.7", lw=0.8)
+            ax.axvline(1.0, color="0.7", lw=0.8)
+            ax.axhline(0.0, color="0.7", lw=0.8)
+            ax.scatter(np.clip(units[:, 0], -0.5, 2.0), np.clip(units[:, 1], -1.25, 1.25), s=9, alpha=0.6)
+            ax.plot([1.0], [0.0], marker="*", color="tab:green", ms=12, ls="")
+            along = f"median {np.median(units[:, 0]):.2f} of the way" if len(units) else "no moved objects"
+            ax.set_title(f"{name} on {test}: {along}", fontsize=8)
+            ax.set_xlim(-0.5, 2.0)
+            ax.set_ylim(-1.25, 1.25)
+            ax.set_aspect("equal")
+            ax.grid(alpha=0.2)
+    for ax in axes[-1]:
+        ax.set_xlabel("along the true move (1: where it ended)", fontsize=8)
+    for ax in axes[:, 0]:
+        ax.set_ylabel("across it", fontsize=8)
+    budget = "all attempts" if block["attempts"] is None else f"{block['attempts']:,} attempts"
+    fig.suptitle(f"Where the models end the moved objects ({budget}, equal {block['equal']}, first repeat)", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return True
+
+
 def write(result: dict, out: Path) -> list[Path]:
     out.mkdir(parents=True, exist_ok=True)
     written = [out / "evaluation.json", out / "evaluation.md"]
@@ -276,4 +335,6 @@ def write(result: dict, out: Path) -> list[Path]:
     written[1].write_text(markdown(result) + "\n")
     if figure(result, out / "budgets.png"):
         written.append(out / "budgets.png")
+    if ends_figure(result, out / "ends.png"):
+        written.append(out / "ends.png")
     return written
