@@ -289,7 +289,8 @@ def figure(result: dict, path: Path) -> bool:
 def ends_figure(result: dict, path: Path) -> bool:
     """Where each source's model ends the test sets' moved objects, in units of their true displacement (the first
     repeat, at the largest budget, equal attempts): one panel per source and test set, the truth at (1, 0) and
-    "nothing moves" at (0, 0). False when no model recorded its ends, and nothing is drawn."""
+    "nothing moves" at (0, 0), objects beyond the frame at its edge. False when no model recorded its ends, and
+    nothing is drawn."""
     blocks = [b for b in result["blocks"] if any(r[0].get("ends") for r in b["sources"].values())]
     if not blocks:
         return False
@@ -309,13 +310,15 @@ def ends_figure(result: dict, path: Path) -> bool:
             ax.axvline(1.0, color="0.7", lw=0.8)
             ax.axhline(0.0, color="0.7", lw=0.8)
             ax.scatter(np.clip(units[:, 0], -0.5, 2.0), np.clip(units[:, 1], -1.25, 1.25), s=9, alpha=0.6)
-            ax.plot([1.0], [0.0], marker="*", color="tab:green", ms=12, ls="")
+            ax.plot([1.0], [0.0], marker="*", color="tab:green", ms=12, ls="", label="where it ended")
+            ax.plot([0.0], [0.0], marker="x", color="tab:red", ms=8, ls="", label="where it started")
             along = f"median {np.median(units[:, 0]):.2f} of the way" if len(units) else "no moved objects"
             ax.set_title(f"{name} on {test}: {along}", fontsize=8)
             ax.set_xlim(-0.5, 2.0)
             ax.set_ylim(-1.25, 1.25)
             ax.set_aspect("equal")
             ax.grid(alpha=0.2)
+    axes[0][0].legend(fontsize=7, loc="lower left")
     for ax in axes[-1]:
         ax.set_xlabel("along the true move (1: where it ended)", fontsize=8)
     for ax in axes[:, 0]:
