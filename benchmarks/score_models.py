@@ -1,7 +1,8 @@
 """Score saved learned simulators (`babblegen evaluate --save-models DIR`) on test sets, without training again: per
-model and test set, the F1 of "moves", the error of where moved objects end as a multiple of "nothing moves" and the
-moved objects it is the median of. Each test set is scored on its own (one dataset each), for example each half of a
-test set made by two explorers; with ``--by-shape`` also each shape's objects alone.
+model and test set, the F1 of "moves", the error of where moved objects end as a multiple of "nothing moves", how far
+along their true moves it ends them (median) and the moved objects these are medians of. Each test set is scored on
+its own (one dataset each), for example each half of a test set made by two explorers; with ``--by-shape`` also each
+shape's objects alone.
 
 ``--true-frames F ...`` says where a model's error is made: each line again with every object's first F frames of
 motion taken from the recording (the model rolls out the rest from there). An error that falls far with F = 1 or 2
@@ -70,7 +71,7 @@ def replayed(model, episodes, count: int) -> np.ndarray:
 
 def line(name: str, s: dict) -> str:
     """One group's F1, error and moved objects, as a line."""
-    return f"{name}: F1 {s['f1']:.3f}, error {s['ratio']:.2f}x over {s['moved']} moved"
+    return f"{name}: F1 {s['f1']:.3f}, error {s['ratio']:.2f}x, {s['along']:.2f} of the way, over {s['moved']} moved"
 
 
 if __name__ == "__main__":
