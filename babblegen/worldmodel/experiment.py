@@ -19,7 +19,7 @@ import numpy as np
 
 from babblegen.worldmodel.baseline import TrainSettings, WorldModel
 from babblegen.worldmodel.episodes import STRATA, Dataset, EpisodeSet, EvaluationError, outcomes
-from babblegen.worldmodel.metrics import in_true_units, mean_displacement, score
+from babblegen.worldmodel.metrics import ends_in_true_units, mean_displacement, score
 from babblegen.worldmodel.planning import (
     PlanningSettings,
     PlanningTask,
@@ -123,9 +123,8 @@ def _fit_and_score(job: tuple[str, int, EpisodeSet, GraphSettings | TrainSetting
 def moved_ends(pred: np.ndarray, test: EpisodeSet) -> list[list[float]]:
     """Per object that moved in ``test``: where ``pred`` (E, K, 4) ends it, in units of its true displacement
     (`metrics.in_true_units`), to 3 decimals."""
-    first, final = object_state(test.first), object_state(test.final)
     moved, _ = outcomes(test)
-    units = in_true_units(pred[..., :2] - first[..., :2], final[..., :2] - first[..., :2])[moved]
+    units = ends_in_true_units(pred, object_state(test.first), object_state(test.final))[moved]
     return np.round(units, 3).tolist()
 
 

@@ -43,6 +43,12 @@ def in_true_units(predicted: np.ndarray, true: np.ndarray) -> np.ndarray:
     return np.stack([along, across], axis=-1)
 
 
+def ends_in_true_units(pred: np.ndarray, first: np.ndarray, final: np.ndarray) -> np.ndarray:
+    """(E, K, 2) where predicted final states ``pred`` (E, K, >=2) end each object, from ``first`` (its start), in
+    units of its true move to ``final`` (`in_true_units`)."""
+    return in_true_units(pred[..., :2] - first[..., :2], final[..., :2] - first[..., :2])
+
+
 def _median(values: np.ndarray) -> float:
     return float(np.median(values)) if values.size else float("nan")
 
@@ -73,7 +79,7 @@ def _scores(pred: np.ndarray, first: np.ndarray, final: np.ndarray, moved: np.nd
         "mean_cm": _median(mean_err),
         "yaw_deg": float(np.degrees(_median(yaw_err))),
         "false_moves": float(pred_moved[still].mean()) if still.any() else float("nan"),
-        "along": _median(in_true_units(pred[..., :2] - first[..., :2], final[..., :2] - first[..., :2])[moved][:, 0]),
+        "along": _median(ends_in_true_units(pred, first, final)[moved][:, 0]),
     }
     out["ratio"] = out["err_cm"] / out["nothing_cm"] if moved.any() else float("nan")
     out["skill"] = 1 - out["ratio"]
