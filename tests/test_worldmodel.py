@@ -442,3 +442,22 @@ def test_a_goal_is_a_place_on_the_table_toppled_or_not():
     none = np.zeros((len(e), 3), dtype=bool)
     goals = choose_goals(e, PlanningSettings(goals=10, object_share=0.0), flags=(none, none))
     assert goals == [(0, 0), (1, 0), (2, 0)]
+
+
+def test_the_training_bar_counts_each_model_s_latest_steps_and_a_finished_model_whole():
+    """The workers tell (model, steps taken); a count that arrives late and smaller changes nothing, and a model that
+    stopped early counts all its steps once it is done."""
+    from multiprocessing import get_context
+
+    from babblegen.worldmodel.experiment import _StepsBar
+
+    steps = _StepsBar(2, 100, get_context("spawn"))
+    try:
+        for item in [(0, 40), (1, 20), (0, 80), (0, 40)]:
+            steps.queue.put(item)
+        steps.wait()
+        assert steps.bar.n == 80 + 20
+        steps.finished(1, "  [1/2] a model")
+        assert steps.bar.n == 80 + 100
+    finally:
+        steps.close()

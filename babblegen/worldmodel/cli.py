@@ -132,6 +132,7 @@ def register(sub) -> None:
     )
     p.add_argument("--seed", type=int, default=0, help="repeat r trains with seed SEED + r [default: 0]")
     p.add_argument("--workers", type=int, default=None, help="processes [default: one per core]")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar of the training steps")
     p.add_argument("--out", type=Path, default=Path("evaluation"), help="output folder [default: evaluation]")
     p.set_defaults(func=cmd_evaluate)  # fmt: skip
 
@@ -234,7 +235,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 
     result = run_experiment(
         sources, tests, args.attempts or [None], modes, train, plan, plan_settings, workers, echo=print,
-        progress=finish, save=args.save_models, ceiling=ceiling,
+        progress=finish, save=args.save_models, ceiling=ceiling, bar=not args.no_progress,
     )  # fmt: skip
     written = finish(result)
     print(f"done in {time.perf_counter() - started:.0f} s: " + ", ".join(str(p) for p in written))

@@ -10,6 +10,7 @@ depends on its data and seed alone, never on the number of workers.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, replace
 from multiprocessing import get_context
@@ -79,19 +80,22 @@ _shared: dict = {}
 
 
 def _init(
-    tests: dict[str, EpisodeSet], plan: PlanningTask | None, plan_settings: PlanningSettings, save: Path | None
-) -> None:
+    tests: dict[str, EpisodeSet], plan: PlanningTask | None, plan_settings: PlanningSettings, save: Path | None,
+    steps=None,
+) -> None:  # fmt: skip
     import torch
 
     torch.set_num_threads(1)
-    _shared.update(tests=tests, plan=plan, plan_settings=plan_settings, save=save)
+    _shared.update(tests=tests, plan=plan, plan_settings=plan_settings, save=save, steps=steps)
 
 
-def fit_model(train: EpisodeSet, settings: GraphSettings | TrainSettings) -> LearnedSimulator | WorldModel:
+def fit_model(
+    train: EpisodeSet, settings: GraphSettings | TrainSettings, progress: Callable[[int], None] | None = None
+) -> LearnedSimulator | WorldModel:
     """The model ``settings`` describe (`GraphSettings`: the learned simulator; `TrainSettings`: the baseline),
-    trained on ``train``."""
+    trained on ``train``; ``progress`` is told the learned simulator's training steps as they are taken."""
     if isinstance(settings, GraphSettings):
-        return LearnedSimulator.fit(train, settings)
+        return LearnedSimulator.fit(train, settings, progress)
     return WorldModel.fit(train, settings)
 
 
@@ -101,10 +105,10 @@ def model_file(save: Path, name: str, attempts: int | None, equal: str, repeat: 
     return save / f"{name}_{budget}_equal-{equal}_repeat{repeat + 1}.pt"
 
 
-def _fit_and_score(job: tuple[str, int, EpisodeSet, GraphSettings | TrainSettings, tuple]) -> dict:
-    name, repeat, train, settings, (attempts, equal) = job
-    tests, plan = _shared["tests"], _shared["plan"]
-    model = fit_model(train, settings)
+def _fit_and_score(job: tuple[int, str, int, EpisodeSet, GraphSettings | TrainSettings, tuple]) -> dict:
+    index, name, repeat, train, settings, (attempts, equal) = job
+    tests, plan, steps = _shared["tests"], _shared["plan"], _shared["steps"]
+    model = fit_model(train, settings, None if steps is None else lambda step: steps.put((index, step)))
     mean = mean_displacement(train)
     out = {"source": name, "repeat": repeat, "episodes": len(train), "steps": model.trained_steps}
     if _shared["save"] is not None and hasattr(model, "save"):
@@ -146,10 +150,11 @@ def run_experiment(
     progress=None,
     save: Path | None = None,
     ceiling: dict | None = None,
+    bar: bool = False,
 ) -> dict:
     """Every (budget, equal mode): per source, the episodes trained on and the scores of each repeat;
     ``progress``, if given, is called with the result so far after each model (a long evaluation keeps what it
-    measured)."""
+    measured); ``bar``: a progress bar of the training steps of every model, the workers' together."""
     blocks, jobs = [], []
     for attempts in attempt_budgets:
         for equal in equal_modes:
@@ -158,7 +163,8 @@ def run_experiment(
             for r, sets in enumerate(per_repeat):
                 for name, episodes in sets.items():
                     settings = replace(train, seed=train.seed + r)
-                    jobs.append((len(blocks), (name, r, held_out(episodes, tests), settings, (attempts, equal))))
+                    job = (len(jobs), name, r, held_out(episodes, tests), settings, (attempts, equal))
+                    jobs.append((len(blocks), job))
             blocks.append(block)
     tests_info = {}
     for name, e in tests.items():
@@ -180,20 +186,77 @@ def run_experiment(
             out["planning"]["ceiling"] = ceiling
     echo(f"training {len(jobs)} models on {workers} worker(s)")
     context = get_context("spawn")
+    steps = _StepsBar(len(jobs), train.steps, context) if bar else None
+    try:
+        _train_all(jobs, blocks, out, workers, context, steps, (tests, plan, plan_settings, save), ceiling, echo,
+                   progress)  # fmt: skip
+    finally:
+        if steps is not None:
+            steps.close()
+    return out
+
+
+def _train_all(jobs, blocks, out, workers, context, steps, shared, ceiling, echo, progress) -> None:
+    """`run_experiment`'s models, trained and scored in the workers, their results applied in submission order."""
+    plan = shared[1]
     with ProcessPoolExecutor(
-        workers, mp_context=context, initializer=_init, initargs=(tests, plan, plan_settings, save)
-    ) as pool:
+        workers, mp_context=context, initializer=_init,
+        initargs=(*shared, None if steps is None else steps.queue),
+    ) as pool:  # fmt: skip
         futures = [(b, pool.submit(_fit_and_score, job)) for b, job in jobs]
-        for done, (b, future) in enumerate(futures, start=1):
+        for done, (b, future) in enumerate(futures, start=1):  # in submission order, whatever finishes first
+            while steps is not None and not future.done():
+                steps.wait()
             result = future.result()
             blocks[b]["sources"].setdefault(result["source"], []).append(result)
             if plan is not None:
                 blocks[b]["planning"] = pooled_planning(blocks[b]["sources"], plan, ceiling)
-            echo(f"  [{done}/{len(jobs)}] {_describe(blocks[b], result)}")
+            line = f"  [{done}/{len(jobs)}] {_describe(blocks[b], result)}"
+            steps.finished(done - 1, line) if steps is not None else echo(line)
             out["models"] = {"done": done, "total": len(jobs)}
             if progress is not None:
                 progress(out)
-    return out
+
+
+class _StepsBar:
+    """A progress bar of every model's training steps: the workers put (model, steps taken) on ``queue``; a model
+    that is done counts whole (it may stop early)."""
+
+    def __init__(self, models: int, steps: int, context) -> None:
+        from tqdm import tqdm
+
+        self.manager = context.Manager()
+        self.queue, self.steps = self.manager.Queue(), steps
+        self.taken = [0] * models
+        self.bar = tqdm(total=models * steps, unit="step", desc="training", dynamic_ncols=True, smoothing=0.1)
+
+    def wait(self, seconds: float = 0.5) -> None:
+        """Count the steps the workers told, waiting up to ``seconds`` for the first."""
+        import queue
+
+        try:
+            item = self.queue.get(timeout=seconds)
+        except queue.Empty:
+            return
+        while True:
+            self._count(*item)
+            try:
+                item = self.queue.get_nowait()
+            except queue.Empty:
+                return
+
+    def finished(self, model: int, line: str) -> None:
+        self._count(model, self.steps)
+        self.bar.write(line)
+
+    def close(self) -> None:
+        self.bar.close()
+        self.manager.shutdown()
+
+    def _count(self, model: int, taken: int) -> None:
+        if taken > self.taken[model]:
+            self.bar.update(taken - self.taken[model])
+            self.taken[model] = taken
 
 
 def pooled_planning(sources: dict[str, list[dict]], plan: PlanningTask, ceiling: dict | None = None) -> dict:

@@ -15,6 +15,7 @@ babblegen/worldmodel/gnn.py), rolled out frame by frame on its own predictions.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -125,7 +126,10 @@ class LearnedSimulator(GatedModel):
         self.train_seconds = 0.0
 
     @classmethod
-    def fit(cls, episodes: EpisodeSet, settings: GraphSettings | None = None) -> LearnedSimulator:
+    def fit(
+        cls, episodes: EpisodeSet, settings: GraphSettings | None = None, progress: Callable[[int], None] | None = None
+    ) -> LearnedSimulator:
+        """Train on ``episodes``; ``progress``, if given, is told the steps taken every ``check`` steps."""
         s = settings or GraphSettings()
         started = time.perf_counter()
         if s.threads:
@@ -171,6 +175,8 @@ class LearnedSimulator(GatedModel):
             loss.backward()
             opt.step()
             sched.step()
+            if progress is not None and step % s.check == 0:
+                progress(step)
             if checks is not None and step % s.check == 0:
                 with torch.no_grad():
                     value = float(_batched_loss(net, *checks))
