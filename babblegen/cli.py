@@ -129,7 +129,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"babblegen: error: {e}", file=sys.stderr)
         return 2
     except (KeyboardInterrupt, Interrupted):  # without babblegen's handlers in place (a run handles its own stops)
-        print(_interrupted_at_start(getattr(args, "out", None)), file=sys.stderr)
+        if args.command == "generate":
+            print(_interrupted_at_start(getattr(args, "out", None)), file=sys.stderr)
+        else:
+            print(_interrupted(args), file=sys.stderr)
         return 130
     except Exception as e:
         full = _disk_full(e)
@@ -142,6 +145,16 @@ def main(argv: list[str] | None = None) -> int:
             file=sys.stderr,
         )
         return 1
+
+
+def _interrupted(args: argparse.Namespace) -> str:
+    """What a command other than ``generate`` says when a stop ends it: what it left (an evaluation keeps what it
+    measured after each model)."""
+    said = f"babblegen: {args.command} interrupted"
+    kept = Path(getattr(args, "out", None) or "") / "evaluation.md"
+    if args.command == "evaluate" and kept.is_file():
+        return f"{said}; the models measured so far are in {kept}"
+    return said
 
 
 def _interrupted_at_start(out: str | None) -> str:

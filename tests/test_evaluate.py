@@ -59,6 +59,31 @@ def test_every_source_is_scored_at_equal_attempts_and_episodes(evaluation, small
     assert all(f"{shape} ({sc['moved']} moved): F1 / error" in table for shape, sc in shapes.items())
 
 
+def test_a_stop_keeps_what_was_measured_and_says_where(
+    small_noveb_dataset, small_random_dataset, small_heldout_dataset, tmp_path, capsys, monkeypatch
+):
+    """Ctrl-C after the first model: exit status 130, and the line says where the models measured so far are (not
+    what an interrupted generate says)."""
+    from babblegen.worldmodel import report
+
+    real = report.write
+
+    def write_then_stop(result: dict, out: Path) -> list[Path]:
+        real(result, out)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(report, "write", write_then_stop)
+    args = ["evaluate", "--train", f"noveb={small_noveb_dataset}", "--train", f"random={small_random_dataset}"]
+    args += ["--test", f"held={small_heldout_dataset}", "--plan-goals", "0", "--out", str(tmp_path), *FAST]
+    assert main(args) == 130
+    printed = capsys.readouterr()
+    assert f"babblegen: evaluate interrupted; the models measured so far are in {tmp_path / 'evaluation.md'}" in (
+        printed.err
+    )
+    assert "[1/4] noveb" in printed.out and "episode" not in printed.err.split("interrupted")[1]
+    assert "**In progress**: 1 of 4 models trained so far." in (tmp_path / "evaluation.md").read_text()
+
+
 def test_an_attempt_budget_cuts_each_dataset_to_its_first_attempts(small_noveb_dataset):
     from babblegen.dataset.sidecar import read_attempts
     from babblegen.worldmodel.episodes import read_dataset
