@@ -15,6 +15,7 @@ from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, replace
 from multiprocessing import get_context
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -81,7 +82,7 @@ _shared: dict = {}
 
 def _init(
     tests: dict[str, EpisodeSet], plan: PlanningTask | None, plan_settings: PlanningSettings, save: Path | None,
-    steps=None,
+    steps: Any = None,  # the training bar's queue (a manager's proxy): (model, steps taken) go on it
 ) -> None:  # fmt: skip
     import torch
 
@@ -126,7 +127,7 @@ def _fit_and_score(job: tuple[int, str, int, EpisodeSet, GraphSettings | TrainSe
 
 def moved_ends(pred: np.ndarray, test: EpisodeSet) -> list[list[float]]:
     """Per object that moved in ``test``: where ``pred`` (E, K, 4) ends it, in units of its true displacement
-    (`metrics.in_true_units`), to 3 decimals."""
+    (`metrics.ends_in_true_units`), to 3 decimals."""
     moved, _ = outcomes(test)
     units = ends_in_true_units(pred, object_state(test.first), object_state(test.final))[moved]
     return np.round(units, 3).tolist()
@@ -212,7 +213,10 @@ def _train_all(jobs, blocks, out, workers, context, steps, shared, ceiling, echo
             if plan is not None:
                 blocks[b]["planning"] = pooled_planning(blocks[b]["sources"], plan, ceiling)
             line = f"  [{done}/{len(jobs)}] {_describe(blocks[b], result)}"
-            steps.finished(done - 1, line) if steps is not None else echo(line)
+            if steps is None:
+                echo(line)
+            else:
+                steps.finished(done - 1, line)
             out["models"] = {"done": done, "total": len(jobs)}
             if progress is not None:
                 progress(out)
