@@ -12,6 +12,8 @@ import numpy as np
 
 from babblegen.shapes import Box, ObjectSpec
 
+FLOOR_HALF_EXTENT = 5.0  # metres: the floor is a square this far each way from the robot; past it an object falls
+
 
 @dataclass(frozen=True)
 class WorkspaceBox:
@@ -102,7 +104,7 @@ class TaskSpec:
 
     def planning_obstacles(self) -> list[Box]:
         """The table, the floor and any extra static boxes (the robot's own body comes from its URDF)."""
-        floor = Box("floor", (0.0, 0.0, -0.5), (5.0, 5.0, 0.5))
+        floor = Box("floor", (0.0, 0.0, -0.5), (FLOOR_HALF_EXTENT, FLOOR_HALF_EXTENT, 0.5))
         return [self.table, floor, *self.extra_obstacles]
 
     def to_dict(self) -> dict:

@@ -18,7 +18,7 @@ from mani_skill.utils.structs import Pose
 from mani_skill.utils.structs.types import SceneConfig, SimConfig
 
 from babblegen.camera_views import CAMERA_PRESETS
-from babblegen.scene import TaskSpec
+from babblegen.scene import FLOOR_HALF_EXTENT, TaskSpec
 from babblegen.shapes import Box, ObjectSpec, Part
 
 # A URDF/SAPIEN cylinder's axis is x; this turns it upright.
@@ -198,10 +198,9 @@ class TabletopEnv(BaseEnv):
         builder.initial_pose = sapien.Pose(p=list(t.center))
         self.table = builder.build_static(name="table")
         floor = ObjectBuilder().set_scene(self.scene)
-        _add_box_collision(floor, [5, 5, 0.01], sapien.Pose(), self._box_hulls)
-        floor.add_box_visual(
-            half_size=[5, 5, 0.01], material=sapien.render.RenderMaterial(base_color=[0.8, 0.8, 0.78, 1])
-        )
+        half = [FLOOR_HALF_EXTENT, FLOOR_HALF_EXTENT, 0.01]
+        _add_box_collision(floor, half, sapien.Pose(), self._box_hulls)
+        floor.add_box_visual(half_size=half, material=sapien.render.RenderMaterial(base_color=[0.8, 0.8, 0.78, 1]))
         floor.initial_pose = sapien.Pose(p=[0, 0, -0.01])
         self.floor = floor.build_static(name="floor")
         self.obstacles = [self._build_obstacle(box) for box in spec.extra_obstacles]
