@@ -29,9 +29,19 @@ from .report_figures import (
     figure_final_tool,
     figure_start_objects,
 )
-from .report_measures import Run, compare, diversity, summarize
+from .report_measures import Run, compare, diversity, moved_object_ends, summarize
 
-__all__ = ["FIGURES", "START_FIGURE", "Run", "compare", "diversity", "markdown", "summarize", "write_report"]
+__all__ = [
+    "FIGURES",
+    "START_FIGURE",
+    "Run",
+    "compare",
+    "diversity",
+    "markdown",
+    "moved_object_ends",
+    "summarize",
+    "write_report",
+]
 
 
 # --- tables --------------------------------------------------------------------------------------------------
@@ -87,6 +97,19 @@ def markdown(
             [s.get("touching_genomes_per_object", {}).get(name) for s in summaries],
         )
     body += row("moved objects' final positions: occupied 2 cm cells", [s.get("moved_cells") for s in summaries])
+    body += row(
+        "moved objects ending on the table / on the floor / past the floor's edge (out of the scene)",
+        [
+            None if "moved_on_table" not in s
+            else f"{s['moved_on_table']} / {s['moved_on_floor']} / {s['moved_out_of_scene']}"
+            for s in summaries
+        ],
+    )  # fmt: skip
+    body += row(
+        "moved objects' final positions on the table: occupied 2 cm cells",
+        [s.get("moved_cells_on_table") for s in summaries],
+    )
+    body += row("episodes losing an object out of the scene", [s.get("episodes_losing_an_object") for s in summaries])
     body += row("distinct changes (object, 2 cm cell of its displacement)", [s.get("changes") for s in summaries])
     body += row("executed attempts with novelty > 0", [s.get("novelty_positive_share") for s in summaries])
     body += row("distinct outcomes (final layouts, 1 cm grid)", [s.get("distinct_outcomes") for s in summaries])
@@ -133,6 +156,8 @@ def markdown(
         text += f"- contact rate ratio (per attempt): {_fmt(comparison['contact_rate_ratio'], 2)}\n"
         text += f"- distinct touching genomes ratio: {_fmt(comparison['touching_genomes_ratio'], 2)}\n"
         text += f"- moved objects' 2 cm cells ratio: {_fmt(comparison['moved_cells_ratio'], 2)}\n"
+        on_table = _fmt(comparison.get("moved_cells_on_table_ratio"), 2)
+        text += f"- the same, on the table alone: {on_table}\n"
         for name, v in comparison["contact_ratio_per_object"].items():
             text += f"- {name}: {_fmt(v, 2)}\n"
     text += "\n## Figures\n\n" + "".join(f"![{k}]({v})\n" for k, v in (figures or FIGURES).items())

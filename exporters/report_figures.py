@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from .geometry import box_footprint, robot_footprint
-from .report_measures import Run
+from .report_measures import OUT_OF_SCENE, Run
 
 FIGURES = {
     "fig2": "fig2_final_tool_positions.png",
@@ -105,15 +105,20 @@ def _figure_object_positions(runs: list[Run], path: Path, key: str, title: str) 
     pts = []
     for ax, run in zip(axes, runs, strict=True):
         _top_view_background(ax, run)
+        lost = 0
         for name in run.object_names:
             p = [r[key][name] for r in run.executed if name in (r.get(key) or {})]
             p = np.array(p, dtype=float).reshape(-1, 7)
+            lost += int((p[:, 2] < OUT_OF_SCENE).sum())
+            p = p[p[:, 2] >= OUT_OF_SCENE]  # fallen past the floor's edge: counted in the title, not drawn
             pts.append(p)
             ax.scatter(
                 p[:, 1], p[:, 0], s=8, color=run.colors[name], edgecolors="0.25", linewidths=0.3, zorder=4, label=name
             )
         n, e = sum(bool(r.get(key)) for r in run.executed), len(run.executed)
         shown = f"{n} executed movements" if n == e else f"{n} of {e} executed movements (the others not recorded)"
+        if lost:
+            shown += f";\n{lost} objects fell past the floor's edge (not drawn)"
         ax.set_title(f"{run.label}: {shown}", fontsize=10)
         ax.legend(loc="upper right", fontsize=8, markerscale=2)
     _set_top_view_limits(axes, runs, pts)

@@ -23,6 +23,8 @@ from babblegen.dataset.sidecar import read_attempts, read_run_info
 from .rerun.scene import SLOT_COLORS
 
 CELL = 0.02  # metres: the grid of the spread measure
+ON_TABLE = 0.05  # metres: a moved object whose centre ends no lower than this under the table top stayed on it
+OUT_OF_SCENE = -0.1  # metres: an object whose centre ends this far under the floor's top fell past its edge
 OUTCOME_GRID = 0.01  # metres: two outcomes differ when some object's final xy falls in another 1 cm cell
 
 
@@ -61,6 +63,12 @@ class Run:
     def drawn(self) -> bool:
         """Whether each start drew its own objects (the task then holds stand-ins for the slots)."""
         return self.objects != "paper"
+
+    @property
+    def table_top(self) -> float:
+        """The table top's height (m), from the task's table box."""
+        table = self.task["table"]
+        return float(table["center"][2] + table["half_extents"][2])
 
     @property
     def has_start_poses(self) -> bool:
@@ -205,6 +213,34 @@ def diversity(rows: list[dict[str, Any]], object_names: list[str]) -> dict[str, 
     }
 
 
+def moved_object_ends(rows: list[dict[str, Any]], object_names: list[str], table_top: float) -> dict[str, Any]:
+    """Where the objects displaced by more than 1 cm end, per executed row: on the table (``moved_on_table``), under
+    it on the floor (``moved_on_floor``), or past the floor's edge, out of the scene (``moved_out_of_scene``; the
+    floor reaches ``babblegen.scene.FLOOR_HALF_EXTENT`` each way). ``moved_cells_on_table``: distinct (object, 2 cm
+    cell) pairs of the final positions of those that stayed on the table. ``episodes_losing_an_object``: executed
+    rows in which some object ends out of the scene."""
+    ends = {"moved_on_table": 0, "moved_on_floor": 0, "moved_out_of_scene": 0}
+    cells: set[tuple[str, int, int]] = set()
+    losing = 0
+    for r in rows:
+        if not r.get("feasible"):
+            continue
+        displacement, final = r.get("displacement") or {}, r.get("final_poses") or {}
+        losing += any(final[name][2] < OUT_OF_SCENE for name in object_names if name in final)
+        for name in object_names:
+            if float(displacement.get(name, 0.0)) <= CELL / 2 or name not in final:
+                continue
+            x, y, z = final[name][:3]
+            if z >= table_top - ON_TABLE:
+                ends["moved_on_table"] += 1
+                cells.add((name, _cell(x), _cell(y)))
+            elif z < OUT_OF_SCENE:
+                ends["moved_out_of_scene"] += 1
+            else:
+                ends["moved_on_floor"] += 1
+    return {**ends, "moved_cells_on_table": len(cells), "episodes_losing_an_object": losing}
+
+
 def object_contacts(rows: list[dict[str, Any]]) -> dict[str, Any]:
     """The executed rows' recorded contact events: ``object_contact_episodes``, those with a contact event between
     two objects (one object pushing another), and ``contact_events_per_pair``, per pair (with the table or the
@@ -260,6 +296,7 @@ def summarize(run: Run) -> dict[str, Any]:
         "clones": len(run.clones),
         **object_contacts(executed),
         **diversity(rows, run.object_names),
+        **moved_object_ends(rows, run.object_names, run.table_top),
     }
 
 
@@ -274,6 +311,7 @@ def compare(this: dict[str, Any], other: dict[str, Any]) -> dict[str, Any]:
         "contact_rate_ratio": _ratio(this["contacts_per_attempt"], other["contacts_per_attempt"]),
         "touching_genomes_ratio": _ratio(this.get("touching_genomes"), other.get("touching_genomes")),
         "moved_cells_ratio": _ratio(this.get("moved_cells"), other.get("moved_cells")),
+        "moved_cells_on_table_ratio": _ratio(this.get("moved_cells_on_table"), other.get("moved_cells_on_table")),
         "contact_ratio_per_object": {
             k: _ratio(v, other["contacts_per_object"].get(k)) for k, v in this["contacts_per_object"].items()
         },

@@ -175,6 +175,47 @@ def test_diversity_counts_distinct_interactions_by_hand():
     assert d["distinct_outcomes"] == 3
 
 
+def test_moved_objects_end_on_the_table_the_floor_or_out_of_the_scene_by_hand():
+    """Objects a row moved over 1 cm are counted where their centres end, against a table top at 0.7 m: on it
+    (0.72 m; down to 5 cm under the top), on the floor (0.03 m) or fallen past its edge (-3 m); an unmoved object
+    and an infeasible row count nowhere."""
+    from babblegen.exporters.report import markdown, moved_object_ends
+
+    names = ["box", "ball"]
+
+    def row(box, ball, feasible=True):
+        """Each object's (final pose, displacement)."""
+        return {
+            "feasible": feasible,
+            "final_poses": {"box": box[0], "ball": ball[0]},
+            "displacement": {"box": box[1], "ball": ball[1]},
+        }
+
+    rows = [
+        row(([0.61, 0.01, 0.72], 0.05), ([0.90, 0.10, 0.73], 0.005)),  # the box on the table, the ball unmoved
+        row(([0.63, 0.01, 0.66], 0.05), ([1.80, 0.30, 0.03], 1.10)),  # on the table's edge, 4 cm low; the floor
+        row(([0.61, 0.01, 0.72], 0.05), ([5.10, 0.40, -3.0], 4.50)),  # the box's cell again; past the floor
+        row(([2.00, 2.00, -9.0], 2.50), ([0.90, 0.10, -9.0], 9.00), feasible=False),
+    ]
+    ends = moved_object_ends(rows, names, table_top=0.7)
+    assert ends == {
+        "moved_on_table": 3,
+        "moved_on_floor": 1,
+        "moved_out_of_scene": 1,
+        "moved_cells_on_table": 2,  # the box at 2 cm cells (30, 0), (31, 0) and (30, 0) again
+        "episodes_losing_an_object": 1,
+    }
+    summary = {"contacts_per_object": {}, "final_object_spread": {}, "final_tool_spread": {"cells": 0}, **ends}
+    summary |= {"explorer": "noveb", "attempts": 4, "executed": 3, "feasible_fraction": 0.75, "contacts": 0}
+    summary |= {"contacts_per_attempt": 0.0, "archive": 0, "wall_time_s": 0.0, "worker_time_s": 0.0}
+    md = markdown([summary | {"infeasible_reasons": {}}], ["run"], None, figures={})
+    assert (
+        "| moved objects ending on the table / on the floor / past the floor's edge (out of the scene) | 3 / 1 / 1 |"
+        in md
+    )
+    assert "| episodes losing an object out of the scene | 1 |" in md
+
+
 # --- without a simulator: a sidecar table written by hand --------------------------------------------------------
 def fake_run(root: Path, starts: str | None, start_poses: bool) -> Path:
     """A dataset's sidecar alone: run.json (``world.starts`` left out when None) and three executed rows, with
