@@ -1,5 +1,5 @@
 """Top-view outlines shared by the report's figures and the Rerun overview: a static box's footprint and the
-robot base's, from the task description stored in run.json."""
+robot base's, and the table top's height, from the task description stored in run.json."""
 
 from __future__ import annotations
 
@@ -9,6 +9,12 @@ import numpy as np
 
 from babblegen.tasks import get_robot
 from babblegen.world.kinematics import UrdfModel
+
+
+def table_top(task: dict[str, Any]) -> float:
+    """The table top's height (m): its box's centre plus half its height."""
+    t = task["table"]
+    return float(t["center"][2] + t["half_extents"][2])
 
 
 def box_footprint(box: dict[str, Any]) -> np.ndarray:

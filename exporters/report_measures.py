@@ -20,6 +20,7 @@ from babblegen.contact_events import had_object_contact
 from babblegen.dataset.paths import CLONES
 from babblegen.dataset.sidecar import read_attempts, read_run_info
 
+from .geometry import table_top
 from .rerun.scene import SLOT_COLORS
 
 CELL = 0.02  # metres: the grid of the spread measure
@@ -67,8 +68,7 @@ class Run:
     @property
     def table_top(self) -> float:
         """The table top's height (m), from the task's table box."""
-        table = self.task["table"]
-        return float(table["center"][2] + table["half_extents"][2])
+        return table_top(self.task)
 
     @property
     def has_start_poses(self) -> bool:

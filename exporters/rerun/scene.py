@@ -17,7 +17,7 @@ from babblegen.tasks import get_robot
 from babblegen.world.cameras import instance_names, look_at_cam2world
 from babblegen.world.kinematics import ArmKinematics, Shape, UrdfModel
 
-from ..geometry import box_footprint, robot_footprint
+from ..geometry import box_footprint, robot_footprint, table_top
 
 if TYPE_CHECKING:
     import rerun as rr
@@ -192,8 +192,7 @@ class Scene:
 
     @property
     def table_top(self) -> float:
-        t = self.task["table"]
-        return float(t["center"][2] + t["half_extents"][2])
+        return table_top(self.task)
 
     def table_outline(self) -> np.ndarray:
         """Corners of the table top (closed loop), world frame."""
